@@ -1,0 +1,51 @@
+"""Recordings are written atomically and read back exactly."""
+
+import json
+
+import numpy as np
+import pytest
+
+from robot.hal import Odometry, Pose2D, SensorFrame
+from robot.recording import RecordingError, RecordingWriter, read_recording
+
+
+def _frame(i):
+    rgb = np.full((24, 32, 3), 10 * i, np.uint8)
+    rgb[:, : 4 * (i + 1)] = 200
+    return SensorFrame(stamp_s=0.1 * i, rgb=rgb, odometry=Odometry(i * 0.1, 0, 0, 0.5, 0, 0, 0), imu_yaw_rate_radps=0.0)
+
+
+def test_round_trip(tmp_path):
+    out = tmp_path / "rec"
+    w = RecordingWriter(out)
+    for i in range(5):
+        w.append(_frame(i), Pose2D(i * 0.1, 0.0, 0.0))
+    summary = w.finish({"world": "test"})
+    assert summary["frames"] == 5 and summary["metres_driven"] == pytest.approx(0.4)
+    assert json.loads((out / "summary.json").read_text())["world"] == "test"
+    frames = read_recording(out)
+    assert [f.index for f in frames] == list(range(5))
+    assert frames[3].true_pose == Pose2D(3 * 0.1, 0.0, 0.0)
+    img = frames[2].load_rgb()
+    assert img.shape == (24, 32, 3)
+    assert abs(int(img[0, 20, 0]) - 20) < 6 and img[0, 0, 0] > 190
+
+
+def test_interrupted_recording_leaves_previous_one(tmp_path):
+    out = tmp_path / "rec"
+    w = RecordingWriter(out)
+    w.append(_frame(0))
+    w.finish()
+    w2 = RecordingWriter(out)
+    w2.append(_frame(1))
+    w2.abort()
+    assert len(read_recording(out)) == 1
+    assert not any(p.name.startswith(".rec") for p in tmp_path.iterdir())
+
+
+def test_missing_and_broken_recordings_are_named(tmp_path):
+    with pytest.raises(RecordingError, match="frames.csv"):
+        read_recording(tmp_path)
+    (tmp_path / "frames.csv").write_text("index,stamp_s,file\n0,0.0,frames/000000.jpg\n")
+    with pytest.raises(RecordingError, match="000000.jpg"):
+        read_recording(tmp_path)
