@@ -1,0 +1,261 @@
+"""Configuration of the navigation controller: thresholds, filter, window, search, speeds.
+
+One frozen dataclass per concern, gathered in :class:`NavigationConfig`. Every field is checked
+in ``__post_init__`` and a bad value raises ``ValueError`` naming the field, which
+``robot.configfile.load_config`` turns into an error naming the YAML file and the dotted field.
+
+All similarities are cosines of L2-normalised descriptors (AnyLoc-style VLAD), in [-1, 1];
+in practice they are in [0, 1]. The paper gives no threshold values; the defaults below are
+placeholders for VLAD cosines (unrelated indoor places around 0.2-0.4, the same place under
+another lighting around 0.7-0.9) and are meant to be replaced by thresholds derived from the
+map with :meth:`Thresholds.from_map`. The defaults equal ``Thresholds.from_map(0.45, 0.80)``
+rounded: nodes added below 0.45, a node re-seen at its pose scoring 0.80.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Optional
+
+from robot.hal import VelocityCommand
+
+
+def _check_similarity(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and -1.0 <= value <= 1.0):
+        raise ValueError(f"{name} must be a cosine similarity in [-1, 1], got {value!r}")
+
+
+def _check_positive(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+
+
+def _check_count(name: str, value: int, minimum: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """The similarity thresholds of the paper's Navigation section, plus the lost threshold.
+
+    Comparisons follow the paper's words: a score must *exceed* ``t_milestone`` and
+    ``t_limited_control`` (strictly greater) and *drop below* ``t_change_node`` (strictly less).
+    """
+
+    #: A node is accepted as "the robot is here" only when its similarity exceeds this: initial
+    #: and global localisation, and confirming that the next node of the path has been reached
+    #: (the goal node included). Too low: wrong places are accepted; too high: the robot never
+    #: confirms nodes under changed lighting and gets lost.
+    t_milestone: float = 0.66
+    #: The robot has left its current node once the similarity to it drops below this; only
+    #: then can the next node be confirmed. It keeps a node that is still close from being
+    #: skipped over on a noisy frame.
+    t_change_node: float = 0.61
+    #: A third of the camera image (Left / Middle / Right) votes for its action only when its
+    #: similarity to the target node exceeds this. Thirds score lower than full views, hence
+    #: a lower value than ``t_milestone``.
+    t_limited_control: float = 0.35
+    #: Not in the paper. When the best filtered similarity inside the matching window stays
+    #: below this, the view shows none of the nearby nodes: after ``lost_patience_ticks`` of it
+    #: the robot re-localises globally. Must be below ``t_change_node`` and ``t_milestone``,
+    #: because between two nodes the scores legitimately fall under both.
+    t_lost: float = 0.40
+
+    def __post_init__(self) -> None:
+        for name in ("t_milestone", "t_change_node", "t_limited_control", "t_lost"):
+            _check_similarity(name, getattr(self, name))
+        if not self.t_lost < min(self.t_change_node, self.t_milestone):
+            raise ValueError(
+                f"t_lost ({self.t_lost}) must be below t_change_node ({self.t_change_node}) and "
+                f"t_milestone ({self.t_milestone}): between nodes the scores fall under those, "
+                "which is not being lost")
+
+    @classmethod
+    def from_map(cls, t_add_new_node: float, self_similarity: float = 1.0, *,
+                 milestone_fraction: float = 0.6, change_fraction: float = 0.45,
+                 lost_fraction: float = 0.15, t_limited_control: Optional[float] = None,
+                 thirds_self_similarity: Optional[float] = None,
+                 control_fraction: float = 0.6) -> "Thresholds":
+        """Thresholds derived from the map's own statistics.
+
+        The mapper adds a node when the similarity to the last node drops below
+        ``t_add_new_node``, so two consecutive nodes score about ``t_add_new_node`` against each
+        other, while a view taken at a node scores about ``self_similarity`` against it (1.0
+        under identical conditions; under other lighting measure it, e.g. as the median
+        similarity between the map's keyframes and views re-taken at their poses, or between
+        each keyframe and the frames recorded right after it). Between two nodes the similarity
+        to a node therefore moves within the band ``[t_add_new_node, self_similarity]``, and the
+        thresholds are placed as fractions of that band above ``t_add_new_node``:
+
+        * ``t_milestone``   = add + ``milestone_fraction`` x band: confirm a node when the view is
+          clearly closer to it than a neighbouring node is;
+        * ``t_change_node`` = add + ``change_fraction`` x band: the robot has left a node
+          (below ``t_milestone``, a hysteresis band against noise);
+        * ``t_lost``        = add - ``lost_fraction`` x band: worse than the view from the
+          neighbouring node, so no nearby node is in view.
+
+        ``t_limited_control`` is taken as given, else as ``control_fraction`` x
+        ``thirds_self_similarity`` (the median, over the map's nodes, of the best score of a
+        node image's own thirds against its full descriptor), else the class default.
+        """
+        _check_similarity("t_add_new_node", t_add_new_node)
+        _check_similarity("self_similarity", self_similarity)
+        if not self_similarity > t_add_new_node:
+            raise ValueError(f"self_similarity ({self_similarity}) must exceed t_add_new_node "
+                             f"({t_add_new_node}); otherwise no band is left for the thresholds")
+        for name, value in (("milestone_fraction", milestone_fraction),
+                            ("change_fraction", change_fraction), ("lost_fraction", lost_fraction),
+                            ("control_fraction", control_fraction)):
+            if not (math.isfinite(value) and 0.0 < value < 1.0):
+                raise ValueError(f"{name} must be in (0, 1), got {value!r}")
+        band = self_similarity - t_add_new_node
+        if t_limited_control is None:
+            if thirds_self_similarity is not None:
+                _check_similarity("thirds_self_similarity", thirds_self_similarity)
+                t_limited_control = control_fraction * thirds_self_similarity
+            else:
+                t_limited_control = cls.t_limited_control
+        return cls(t_milestone=t_add_new_node + milestone_fraction * band,
+                   t_change_node=t_add_new_node + change_fraction * band,
+                   t_limited_control=t_limited_control,
+                   t_lost=max(-1.0, t_add_new_node - lost_fraction * band))
+
+
+@dataclass(frozen=True)
+class SimilarityFilterConfig:
+    """A scalar random-walk Kalman filter per node smooths the similarity signals.
+
+    The model is ``s_k = s_(k-1) + w`` (process noise std ``process_std`` per tick) observed as
+    ``z_k = s_k + v`` (measurement noise std ``measurement_std``). The steady-state gain is
+    about ``process_std / measurement_std`` for small ratios: the defaults give a gain near
+    0.18, so a single-frame spike moves the filtered score by under a fifth of its height,
+    while a real change is followed within about five ticks.
+    """
+
+    #: How fast the true similarity may change per control tick (std). Larger: faster
+    #: response, less smoothing.
+    process_std: float = 0.01
+    #: Frame-to-frame noise of one similarity score (std), e.g. from lighting flicker or
+    #: people walking by. Larger: more smoothing.
+    measurement_std: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check_positive("process_std", self.process_std)
+        _check_positive("measurement_std", self.measurement_std)
+
+
+@dataclass(frozen=True)
+class SupervisorConfig:
+    """Node switching: the matching window and the patience before declaring the robot lost."""
+
+    #: Path positions behind the current node that still count as "nearby" (only for the lost
+    #: check: seeing the node just passed is not being lost).
+    window_behind: int = 1
+    #: Path positions ahead of the current node that may be matched. Nodes further ahead or
+    #: off the path are never matched, so far-away look-alikes cannot pull the robot forward
+    #: (the paper's boundaries; ViNT uses +-4).
+    window_ahead: int = 3
+    #: Consecutive ticks with the best filtered score in the window below ``t_lost`` before
+    #: the robot counts as lost and re-localises globally. Bridges short occlusions.
+    lost_patience_ticks: int = 15
+    #: Ticks without confirming any new node before the robot counts as lost (stuck against
+    #: an obstacle, or hovering between two nodes without ever passing ``t_milestone``).
+    progress_patience_ticks: int = 600
+
+    def __post_init__(self) -> None:
+        _check_count("window_behind", self.window_behind, 0)
+        _check_count("window_ahead", self.window_ahead, 1)
+        _check_count("lost_patience_ticks", self.lost_patience_ticks, 1)
+        _check_count("progress_patience_ticks", self.progress_patience_ticks, 1)
+
+
+@dataclass(frozen=True)
+class LocaliserConfig:
+    """Initial / global localisation: confirm a match, otherwise turn counter-clockwise."""
+
+    #: The same node must be the best match above ``t_milestone`` for this many consecutive
+    #: ticks (the robot holds still meanwhile), so one lucky frame cannot place the robot.
+    confirm_ticks: int = 3
+    #: Counter-clockwise rotation (accumulated from the heading the caller supplies) after
+    #: which the search gives up: a full turn showed nothing the map knows.
+    full_turn_rad: float = 2.0 * math.pi
+    #: Tick budget of one search, for bases without a heading and for a robot that is stuck
+    #: and cannot turn. Default: 2 pi at 0.5 rad/s and 10 Hz is 126 ticks, plus margin.
+    max_search_ticks: int = 300
+
+    def __post_init__(self) -> None:
+        _check_count("confirm_ticks", self.confirm_ticks, 1)
+        _check_positive("full_turn_rad", self.full_turn_rad)
+        _check_count("max_search_ticks", self.max_search_ticks, 1)
+
+
+@dataclass(frozen=True)
+class ActionSpeeds:
+    """Body velocity of each action (counter-clockwise yaw rate positive).
+
+    The paper's actions: Left / Middle / Right turn left, go forward, turn right; a vote
+    conflict that involves Middle gives forward-left / forward-right (forward with a turn).
+    The rotate-search turns counter-clockwise in place, as the paper's localisation does.
+    """
+
+    forward: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.25, 0.0))
+    left: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.0, 0.5))
+    right: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.0, -0.5))
+    forward_left: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.2, 0.3))
+    forward_right: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.2, -0.3))
+    search_rotate: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.0, 0.5))
+
+    def __post_init__(self) -> None:
+        # (name, required sign of v, required sign of w; 0 = not checked). Only the part
+        # that defines the action is checked, so an in-place turn may creep forward.
+        rules = (("forward", 1, 0), ("left", 0, 1), ("right", 0, -1),
+                 ("forward_left", 1, 1), ("forward_right", 1, -1), ("search_rotate", 0, 1))
+        for name, v_sign, w_sign in rules:
+            cmd = getattr(self, name)
+            if not isinstance(cmd, VelocityCommand):
+                raise ValueError(f"{name} must be a VelocityCommand(v_mps, w_radps), got {cmd!r}")
+            if cmd.v_mps < 0:
+                raise ValueError(f"{name}.v_mps must not be negative (the camera looks forward), "
+                                 f"got {cmd.v_mps}")
+            if v_sign > 0 and not cmd.v_mps > 0:
+                raise ValueError(f"{name}.v_mps must be positive, got {cmd.v_mps}")
+            if w_sign and not cmd.w_radps * w_sign > 0:
+                side = "positive (counter-clockwise)" if w_sign > 0 else "negative (clockwise)"
+                raise ValueError(f"{name}.w_radps must be {side}, got {cmd.w_radps}")
+
+
+@dataclass(frozen=True)
+class NavigationConfig:
+    """Everything the navigator needs besides the map. Load from YAML with
+    ``robot.configfile.load_config(NavigationConfig, path)``; use :meth:`with_thresholds` to
+    plug in thresholds derived from a map (:meth:`Thresholds.from_map`)."""
+
+    thresholds: Thresholds = field(default_factory=Thresholds)
+    filter: SimilarityFilterConfig = field(default_factory=SimilarityFilterConfig)
+    supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
+    localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
+    speeds: ActionSpeeds = field(default_factory=ActionSpeeds)
+    #: The two-cycle voter executes on every second tick. True: the executed action is held
+    #: through the next (storing) tick, i.e. each decision lasts one two-tick vote period
+    #: (a zero-order hold; smooth motion). False: the robot stands still on storing ticks,
+    #: the literal reading of "the first cycle stores, the second executes".
+    hold_action_between_votes: bool = True
+    #: Consecutive ticks in which no third exceeds ``t_limited_control`` (the target is out of
+    #: sight) before the robot turns counter-clockwise in place to look for it.
+    no_vote_patience_ticks: int = 6
+    #: Global re-localisations allowed in one episode before giving up (FAILED); bounds a
+    #: robot that keeps getting lost.
+    max_relocalisations: int = 5
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.hold_action_between_votes, bool):
+            raise ValueError(f"hold_action_between_votes must be true or false, "
+                             f"got {self.hold_action_between_votes!r}")
+        _check_count("no_vote_patience_ticks", self.no_vote_patience_ticks, 1)
+        _check_count("max_relocalisations", self.max_relocalisations, 0)
+
+    def with_thresholds(self, thresholds: Thresholds) -> "NavigationConfig":
+        """The same configuration with other thresholds (e.g. ``Thresholds.from_map(...)``)."""
+        return replace(self, thresholds=thresholds)

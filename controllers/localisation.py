@@ -1,0 +1,201 @@
+"""Initial and global localisation against every node of the map.
+
+A view (or the goal image) is placed at the node with the highest similarity, but only when
+that similarity exceeds ``t_milestone`` (paper, "Initial Localization"). When nothing passes,
+the robot turns counter-clockwise in place and tries again; after a full turn, measured by
+accumulating the heading the caller supplies (odometry or IMU yaw), or after a tick budget,
+the :class:`InitialLocaliser` reports that the robot cannot place itself.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass
+from typing import Hashable, Optional, Sequence
+
+import numpy as np
+
+from controllers.actions import Action
+from controllers.config import LocaliserConfig
+
+NodeId = Hashable
+
+
+class LocalisationError(ValueError):
+    """Bad input to localisation (a similarity row of the wrong length, non-finite scores)."""
+
+
+class GoalNotLocalisedError(LocalisationError):
+    """The goal image matches no node of the map above ``t_milestone``."""
+
+
+@dataclass(frozen=True)
+class Localisation:
+    """The best node for one similarity row, and whether it passes ``t_milestone``."""
+
+    best_node: NodeId
+    best_score: float
+    accepted: bool
+    t_milestone: float
+
+    @property
+    def node(self) -> Optional[NodeId]:
+        """The accepted node, or None when the best score does not exceed ``t_milestone``."""
+        return self.best_node if self.accepted else None
+
+    def describe(self) -> str:
+        verdict = ">" if self.accepted else "<="
+        return (f"best node {self.best_node!r} with similarity {self.best_score:.3f} "
+                f"{verdict} t_milestone {self.t_milestone:.3f}")
+
+
+def plain_node_ids(node_ids: Sequence[NodeId]) -> tuple:
+    """Node ids as a tuple of plain Python values (a map may hand over an int64 array; numpy
+    scalars would leak into messages as ``np.int64(7)``)."""
+    return tuple(n.item() if isinstance(n, np.generic) else n for n in node_ids)
+
+
+def similarity_row(similarities: np.ndarray, size: int, what: str = "similarity row") -> np.ndarray:
+    """Check that ``similarities`` is a finite 1-D row of ``size`` scores; return it as floats."""
+    row = np.asarray(similarities, dtype=float)
+    if row.ndim != 1 or row.shape[0] != size:
+        raise LocalisationError(f"{what} must have one score per map node ({size}), got shape "
+                                f"{row.shape}")
+    if not np.all(np.isfinite(row)):
+        bad = int(np.flatnonzero(~np.isfinite(row))[0])
+        raise LocalisationError(f"{what} has a non-finite score at column {bad}")
+    return row
+
+
+def localise(similarities: np.ndarray, node_ids: Sequence[NodeId],
+             t_milestone: float) -> Localisation:
+    """Place one view: the best node of the row, accepted only above ``t_milestone``.
+
+    ``similarities[j]`` is the cosine similarity of the view to node ``node_ids[j]``; ties go
+    to the first column.
+    """
+    row = similarity_row(similarities, len(node_ids))
+    j = int(np.argmax(row))
+    score = float(row[j])
+    node = plain_node_ids([node_ids[j]])[0]
+    return Localisation(node, score, score > t_milestone, float(t_milestone))
+
+
+def localise_goal_image(similarities: np.ndarray, node_ids: Sequence[NodeId],
+                        t_milestone: float) -> Localisation:
+    """Place the goal image, or raise :class:`GoalNotLocalisedError` saying how close it came.
+
+    The goal image is fixed, so turning the robot cannot help: no match is final.
+    """
+    result = localise(similarities, node_ids, t_milestone)
+    if not result.accepted:
+        raise GoalNotLocalisedError(f"the goal image matches no node of the map: {result.describe()}")
+    return result
+
+
+class TurnMeter:
+    """Counter-clockwise rotation accumulated from successive headings (radians).
+
+    Each heading difference is wrapped to (-pi, pi], so headings may wrap freely; the caller
+    must supply headings often enough that the robot turns less than pi between two of them.
+    Clockwise motion counts negative. ``None`` headings (no odometry / IMU) are ignored.
+    """
+
+    def __init__(self) -> None:
+        self._last: Optional[float] = None
+        self.turned_rad = 0.0
+
+    def update(self, heading_rad: Optional[float]) -> float:
+        if heading_rad is not None:
+            if not math.isfinite(heading_rad):
+                raise LocalisationError(f"heading_rad must be finite, got {heading_rad!r}")
+            if self._last is not None:
+                delta = heading_rad - self._last
+                self.turned_rad += math.atan2(math.sin(delta), math.cos(delta))
+            self._last = float(heading_rad)
+        return self.turned_rad
+
+
+class LocaliserStatus(enum.Enum):
+    """Where an :class:`InitialLocaliser` stands after a tick."""
+
+    CONFIRMING = "confirming"   # a node passes; holding still until it passed confirm_ticks times
+    ROTATING = "rotating"       # nothing passes; turning counter-clockwise in place
+    LOCALISED = "localised"     # final: ``node`` is where the robot is
+    FAILED = "failed"           # final: a full turn (or the tick budget) found nothing
+
+
+@dataclass(frozen=True)
+class LocaliserStep:
+    """The localiser's output for one tick."""
+
+    status: LocaliserStatus
+    action: Action              # NONE while confirming, SEARCH_ROTATE while rotating, STOP at the end
+    node: Optional[NodeId]      # the localised node (LOCALISED only)
+    best: Localisation          # this tick's best match
+    turned_rad: float           # counter-clockwise rotation accumulated so far
+    ticks: int                  # ticks spent in this search
+    reason: str
+
+
+class InitialLocaliser:
+    """Tick-based global localisation of the current view with a counter-clockwise search.
+
+    Each tick: if the best node exceeds ``t_milestone`` the robot holds still (``NONE``) until
+    the same node has been best and above threshold for ``confirm_ticks`` consecutive ticks,
+    then it is LOCALISED. Otherwise it asks for ``SEARCH_ROTATE``; once the accumulated turn
+    reaches ``full_turn_rad`` or ``max_search_ticks`` ticks have passed, it is FAILED: the
+    robot cannot place itself. Final states repeat on further ticks.
+    """
+
+    def __init__(self, node_ids: Sequence[NodeId], t_milestone: float,
+                 config: LocaliserConfig = LocaliserConfig()):
+        if len(node_ids) == 0:
+            raise LocalisationError("the map has no nodes to localise against")
+        self.node_ids = plain_node_ids(node_ids)
+        self.t_milestone = float(t_milestone)
+        self.config = config
+        self._turn = TurnMeter()
+        self._ticks = 0
+        self._candidate: Optional[NodeId] = None
+        self._streak = 0
+        self._final: Optional[LocaliserStep] = None
+
+    @property
+    def done(self) -> bool:
+        return self._final is not None
+
+    def tick(self, similarities: np.ndarray, heading_rad: Optional[float] = None) -> LocaliserStep:
+        """One localisation tick: the current view's similarity to every node, and the heading."""
+        if self._final is not None:
+            return self._final
+        best = localise(similarities, self.node_ids, self.t_milestone)
+        turned = self._turn.update(heading_rad)
+        self._ticks += 1
+
+        if best.accepted:
+            self._streak = self._streak + 1 if best.best_node == self._candidate else 1
+            self._candidate = best.best_node
+            if self._streak >= self.config.confirm_ticks:
+                return self._finish(LocaliserStatus.LOCALISED, best.best_node, best, turned,
+                                    f"localised at node {best.best_node!r}: {best.describe()}, "
+                                    f"{self._streak} ticks in a row")
+            return LocaliserStep(LocaliserStatus.CONFIRMING, Action.NONE, None, best, turned,
+                                 self._ticks, f"confirming node {best.best_node!r} "
+                                 f"({self._streak}/{self.config.confirm_ticks}): {best.describe()}")
+        self._candidate, self._streak = None, 0
+        if turned >= self.config.full_turn_rad or self._ticks >= self.config.max_search_ticks:
+            spent = (f"a full counter-clockwise turn ({math.degrees(turned):.0f} deg)"
+                     if turned >= self.config.full_turn_rad else f"{self._ticks} search ticks")
+            return self._finish(LocaliserStatus.FAILED, None, best, turned,
+                                f"the robot cannot place itself: after {spent} no view matched a "
+                                f"node; last {best.describe()}")
+        return LocaliserStep(LocaliserStatus.ROTATING, Action.SEARCH_ROTATE, None, best, turned,
+                             self._ticks, f"rotating counter-clockwise: {best.describe()}")
+
+    def _finish(self, status: LocaliserStatus, node: Optional[NodeId], best: Localisation,
+                turned: float, reason: str) -> LocaliserStep:
+        self._final = LocaliserStep(status, Action.STOP if status is LocaliserStatus.FAILED
+                                    else Action.NONE, node, best, turned, self._ticks, reason)
+        return self._final

@@ -1,0 +1,318 @@
+"""The navigator: localisation, planning, node switching and action voting in one tick.
+
+The run loop only has to, every control period::
+
+    row = node_descriptors @ view_descriptor              # similarity to every map node
+    step = navigator.tick(row, thirds=thirds_fn, heading_rad=odometry.yaw_rad)
+    base.apply(step.velocity)
+    if step.finished: stop, and report step.state / step.reason
+
+``thirds`` gives the Left / Middle / Right thirds' similarities to a node: either a callable
+``thirds(node_id) -> (left, middle, right)`` (called at most once a tick, and only while
+navigating, so the thirds are described only when needed) or an ``(N, 3)`` array over all
+nodes in column order.
+
+States (:class:`NavState`):
+
+* LOCALISING: initial localisation; holds still to confirm a match, or turns
+  counter-clockwise while nothing passes ``t_milestone``; FAILED after a full turn.
+* NAVIGATING: following the planned path; actions from the two-cycle voter.
+* SEARCHING: no third has seen the target for ``no_vote_patience_ticks`` ticks; turns
+  counter-clockwise in place until one does (back to NAVIGATING), or re-localises after a
+  full turn.
+* RELOCALISING: the supervisor reported the robot lost; global localisation as in
+  LOCALISING, then a new plan from the node found (counted in ``relocalisations``).
+* ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero.
+* FAILED (final): cannot place itself, goal unreachable, or too many re-localisations;
+  ``reason`` says which; velocity zero.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Callable, Hashable, Optional, Sequence, Tuple, Union
+
+import networkx as nx
+import numpy as np
+
+from robot.hal import VelocityCommand
+
+from controllers.actions import Action, action_velocity
+from controllers.config import NavigationConfig
+from controllers.localisation import (InitialLocaliser, Localisation, LocalisationError,
+                                      LocaliserStatus, TurnMeter, localise_goal_image,
+                                      plain_node_ids, similarity_row)
+from controllers.planner import GlobalPlanner, PlanningError
+from controllers.similarity_filter import SimilarityFilter
+from controllers.supervisor import NodeSwitchSupervisor, SupervisorDecision, SupervisorState
+from controllers.voter import ThirdScores, TwoCycleVoter, VoteKind, VoteResult
+
+NodeId = Hashable
+ThirdsInput = Union[Callable[[NodeId], Sequence[float]], np.ndarray, None]
+
+
+class NavigationInputError(ValueError):
+    """The run loop passed something the navigator cannot use (wrong shapes, no thirds)."""
+
+
+class NavState(enum.Enum):
+    LOCALISING = "localising"
+    SEARCHING = "searching"
+    NAVIGATING = "navigating"
+    RELOCALISING = "relocalising"
+    ARRIVED = "arrived"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class NavigationStep:
+    """Everything the navigator decided in one tick (for the run loop, logs and overlays)."""
+
+    tick: int                                  # 1 for the first tick
+    state: NavState
+    action: Action
+    velocity: VelocityCommand                  # apply this to the base
+    goal_node: NodeId
+    planned_path: Tuple[NodeId, ...]           # the current plan (empty before localisation)
+    path_index: Optional[int]                  # position of current_node on the plan
+    current_node: Optional[NodeId]             # last confirmed / localised node
+    target_node: Optional[NodeId]              # node the voter steers towards
+    current_score: Optional[float]             # filtered similarity to current_node
+    target_score: Optional[float]              # filtered similarity to target_node
+    thirds: Optional[ThirdScores]              # thirds' scores against target_node this tick
+    vote: Optional[VoteResult]
+    supervisor: Optional[SupervisorDecision]
+    visited_nodes: Tuple[NodeId, ...]          # localised / confirmed nodes, in order
+    relocalisations: int                       # global re-localisations so far
+    replans: int                               # plans made after the first one
+    turned_rad: float                          # rotation of the current search (0 when none)
+    reason: str
+
+    @property
+    def finished(self) -> bool:
+        return self.state in (NavState.ARRIVED, NavState.FAILED)
+
+
+class Navigator:
+    """Tick-based navigation from wherever the robot is to ``goal_node`` of the map.
+
+    ``graph`` is the map's directed graph (arc attribute ``weight``), ``node_ids[j]`` the node
+    of column ``j`` of every similarity row (every graph node needs a column).
+    """
+
+    def __init__(self, graph: nx.DiGraph, node_ids: Sequence[NodeId], goal_node: NodeId,
+                 config: NavigationConfig = NavigationConfig()):
+        self.planner = GlobalPlanner(graph)
+        self.node_ids = plain_node_ids(node_ids)
+        if len(set(self.node_ids)) != len(self.node_ids):
+            raise NavigationInputError("node_ids must not repeat a node")
+        columns = set(self.node_ids)
+        without_column = [n for n in graph.nodes if n not in columns]
+        if without_column:
+            raise NavigationInputError(f"map node {without_column[0]!r} has no column in the "
+                                       "similarity rows (node_ids)")
+        not_in_graph = [n for n in self.node_ids if n not in graph]
+        if not_in_graph:
+            raise NavigationInputError(f"node_ids names node {not_in_graph[0]!r}, which is not a "
+                                       "node of the map graph")
+        goal_node = plain_node_ids([goal_node])[0]
+        self.planner.check_node(goal_node, "goal node")
+        self.goal_node = goal_node
+        self.config = config
+        self._column = {node: j for j, node in enumerate(self.node_ids)}
+        self.filter = SimilarityFilter(len(self.node_ids), config.filter)
+        self.voter = TwoCycleVoter(config.thresholds.t_limited_control,
+                                   hold_executed=config.hold_action_between_votes)
+        self._state = NavState.LOCALISING
+        self._localiser = self._new_localiser()
+        self._supervisor: Optional[NodeSwitchSupervisor] = None
+        self._plan: Tuple[NodeId, ...] = ()
+        self._visited: list = []
+        self._ticks = 0
+        self._relocalisations = 0
+        self._plans = 0
+        self._no_vote_ticks = 0
+        self._search: Optional[TurnMeter] = None
+        self._search_ticks = 0
+        self._final: Optional[NavigationStep] = None
+
+    @classmethod
+    def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
+                      goal_similarities: np.ndarray,
+                      config: NavigationConfig = NavigationConfig()) -> "Navigator":
+        """A navigator to the node the goal image matches; raises
+        :class:`controllers.localisation.GoalNotLocalisedError` when it matches none."""
+        goal = cls.locate_goal_image(node_ids, goal_similarities, config)
+        return cls(graph, node_ids, goal.node, config)
+
+    @staticmethod
+    def locate_goal_image(node_ids: Sequence[NodeId], goal_similarities: np.ndarray,
+                          config: NavigationConfig = NavigationConfig()) -> Localisation:
+        """The goal image's node above ``t_milestone`` (raises GoalNotLocalisedError)."""
+        return localise_goal_image(goal_similarities, node_ids, config.thresholds.t_milestone)
+
+    @property
+    def state(self) -> NavState:
+        return self._state
+
+    @property
+    def planned_path(self) -> Tuple[NodeId, ...]:
+        return self._plan
+
+    @property
+    def visited_nodes(self) -> Tuple[NodeId, ...]:
+        return tuple(self._visited)
+
+    def tick(self, similarities: np.ndarray, thirds: ThirdsInput = None,
+             heading_rad: Optional[float] = None) -> NavigationStep:
+        """One control tick.
+
+        ``similarities``: the current full view's cosine similarity to every node (column order
+        ``node_ids``); ``thirds``: see the module docstring; ``heading_rad``: the yaw from
+        odometry or the IMU in radians (any fixed frame, may wrap; only differences are used),
+        or None when the base has neither.
+        """
+        try:
+            row = similarity_row(similarities, len(self.node_ids), "similarities")
+        except LocalisationError as exc:
+            raise NavigationInputError(str(exc)) from None
+        if self._final is not None:
+            return self._final
+        self._ticks += 1
+        if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
+            return self._localise_tick(row, heading_rad)
+        return self._navigate_tick(row, thirds, heading_rad)
+
+    # -- localisation ---------------------------------------------------------------------
+
+    def _new_localiser(self) -> InitialLocaliser:
+        return InitialLocaliser(self.node_ids, self.config.thresholds.t_milestone,
+                                self.config.localiser)
+
+    def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
+        self.filter.update(row)  # keep the filter warm for the supervisor that follows
+        result = self._localiser.tick(row, heading_rad)
+        if result.status is LocaliserStatus.FAILED:
+            return self._fail(result.reason, turned_rad=result.turned_rad)
+        if result.status is not LocaliserStatus.LOCALISED:
+            return self._step(result.action, reason=result.reason, turned_rad=result.turned_rad)
+        start = result.node
+        self._remember(start)
+        try:
+            plan = self.planner.plan(start, self.goal_node)
+        except PlanningError as exc:
+            return self._fail(f"{result.reason}; {exc}")
+        self._plans += 1
+        self._plan = plan.nodes
+        self._supervisor = NodeSwitchSupervisor(plan.nodes, self.node_ids, self.config, self.filter)
+        self.voter.reset()
+        self._no_vote_ticks = 0
+        self._state = NavState.NAVIGATING
+        return self._step(Action.NONE, reason=f"{result.reason}; planned "
+                          f"{len(plan.nodes)} nodes (cost {plan.cost:g}) to goal {self.goal_node!r}")
+
+    def _relocalise(self, why: str, decision: Optional[SupervisorDecision]) -> NavigationStep:
+        self._relocalisations += 1
+        self.voter.reset()
+        self._search = None
+        if self._relocalisations > self.config.max_relocalisations:
+            return self._fail(f"{why}; gave up after {self.config.max_relocalisations} "
+                              "re-localisations", decision=decision)
+        self._supervisor = None
+        self._localiser = self._new_localiser()
+        self._state = NavState.RELOCALISING
+        return self._step(Action.NONE, decision=decision,
+                          reason=f"{why}; re-localising globally ({self._relocalisations})")
+
+    # -- navigation -----------------------------------------------------------------------
+
+    def _navigate_tick(self, row: np.ndarray, thirds: ThirdsInput,
+                       heading_rad: Optional[float]) -> NavigationStep:
+        decision = self._supervisor.tick(row)
+        if decision.confirmed_node is not None:
+            self._remember(decision.confirmed_node)
+            self.voter.reset()
+            self._no_vote_ticks = 0
+            if self._state is NavState.SEARCHING:
+                self._state, self._search = NavState.NAVIGATING, None
+        if decision.state is SupervisorState.GOAL_REACHED:
+            self._state = NavState.ARRIVED
+            self._final = self._step(Action.STOP, decision=decision, reason=decision.reason)
+            return self._final
+        if decision.state is SupervisorState.LOST:
+            return self._relocalise(decision.reason, decision)
+
+        scores = self._thirds_for(decision.target_node, thirds)
+        vote = self.voter.tick(scores)
+        self._no_vote_ticks = self._no_vote_ticks + 1 if vote.kind is VoteKind.NO_VOTE else 0
+
+        if self._state is NavState.SEARCHING:
+            if vote.vote is not None:
+                self._state, self._search = NavState.NAVIGATING, None
+                return self._step(vote.action, decision, scores, vote,
+                                  f"target {decision.target_node!r} back in view; {vote.reason}")
+            turned = self._search.update(heading_rad)
+            self._search_ticks += 1
+            loc = self.config.localiser
+            if turned >= loc.full_turn_rad or self._search_ticks >= loc.max_search_ticks:
+                return self._relocalise(f"target {decision.target_node!r} not seen by any third "
+                                        f"during a full search turn", decision)
+            return self._step(Action.SEARCH_ROTATE, decision, scores, vote,
+                              f"searching for target {decision.target_node!r}: {vote.reason}",
+                              turned_rad=turned)
+
+        if self._no_vote_ticks >= self.config.no_vote_patience_ticks:
+            self._state = NavState.SEARCHING
+            self._search, self._search_ticks = TurnMeter(), 0
+            self._search.update(heading_rad)
+            return self._step(Action.SEARCH_ROTATE, decision, scores, vote,
+                              f"target {decision.target_node!r} out of sight for "
+                              f"{self._no_vote_ticks} ticks; turning counter-clockwise to find it")
+        return self._step(vote.action, decision, scores, vote, f"{decision.reason}; {vote.reason}")
+
+    def _thirds_for(self, node: NodeId, thirds: ThirdsInput) -> ThirdScores:
+        if thirds is None:
+            raise NavigationInputError("thirds scores are needed while navigating: pass a "
+                                       "callable node_id -> (left, middle, right) or an (N, 3) array")
+        try:
+            if callable(thirds):
+                return ThirdScores.of(thirds(node))
+            matrix = np.asarray(thirds, dtype=float)
+            if matrix.shape != (len(self.node_ids), 3):
+                raise NavigationInputError(f"thirds array must have shape ({len(self.node_ids)}, 3) "
+                                           f"(one row per node), got {matrix.shape}")
+            return ThirdScores.of(matrix[self._column[node]])
+        except (TypeError, ValueError) as exc:
+            if isinstance(exc, NavigationInputError):
+                raise
+            raise NavigationInputError(f"bad thirds scores for node {node!r}: {exc}") from None
+
+    # -- output ---------------------------------------------------------------------------
+
+    def _remember(self, node: NodeId) -> None:
+        if not self._visited or self._visited[-1] != node:
+            self._visited.append(node)
+
+    def _fail(self, reason: str, decision: Optional[SupervisorDecision] = None,
+              turned_rad: float = 0.0) -> NavigationStep:
+        self._state = NavState.FAILED
+        self._final = self._step(Action.STOP, decision, reason=reason, turned_rad=turned_rad)
+        return self._final
+
+    def _step(self, action: Action, decision: Optional[SupervisorDecision] = None,
+              thirds: Optional[ThirdScores] = None, vote: Optional[VoteResult] = None,
+              reason: str = "", turned_rad: float = 0.0) -> NavigationStep:
+        current = decision.current_node if decision else (self._visited[-1] if self._visited else None)
+        return NavigationStep(
+            tick=self._ticks, state=self._state, action=action,
+            velocity=action_velocity(action, self.config.speeds), goal_node=self.goal_node,
+            planned_path=self._plan,
+            path_index=decision.path_index if decision else None,
+            current_node=current,
+            target_node=decision.target_node if decision else None,
+            current_score=decision.current_score if decision else None,
+            target_score=decision.target_score if decision else None,
+            thirds=thirds, vote=vote, supervisor=decision, visited_nodes=tuple(self._visited),
+            relocalisations=self._relocalisations, replans=max(0, self._plans - 1),
+            turned_rad=turned_rad, reason=reason)

@@ -1,0 +1,226 @@
+"""The node-switch supervisor: where on the planned path L0..Ln the robot is, tick by tick.
+
+The robot's *current node* is the last path node it confirmed, L_i; its *target node* is the
+next one, L_i+1, whose image the action voter steers towards. Per the paper:
+
+* LEAVING L_i: driving from L_i towards L_i+1, the similarity to L_i falls; once it drops below
+  ``t_change_node`` the robot has left L_i and switches to L_i+1 (APPROACHING);
+* APPROACHING L_i+1: the robot has reached L_i+1 when the similarity to it exceeds
+  ``t_milestone``; it becomes the current node (LEAVING it towards L_i+2). When it is the last
+  node Ln, the goal is reached (GOAL_REACHED, final).
+
+Additions, each for a failure seen in practice:
+
+* **Filtering.** All decisions use Kalman-filtered similarities
+  (:class:`controllers.similarity_filter.SimilarityFilter`), so one noisy frame can neither
+  confirm a node, nor switch away from one, nor hide the goal from a robot standing at it.
+* **Window.** Only path positions ``i - window_behind .. i + window_ahead`` are matched;
+  far-away look-alikes and nodes off the path are ignored (the paper's boundaries).
+* **Nodes passed unnoticed.** A node ahead inside the window (L_i+1 or further) is confirmed
+  as soon as its filtered score exceeds ``t_milestone`` and is the best of the nodes ahead -
+  while LEAVING it must also beat the current node's score (the view resembles it more than
+  L_i). This is the paper's "general localisation" limited to the window; it lets a robot
+  that missed a milestone, or a dense map, keep going.
+* **Lost.** When the best filtered score inside the window stays below ``t_lost`` for
+  ``lost_patience_ticks`` ticks, or no node is confirmed for ``progress_patience_ticks``
+  ticks, the state is LOST (final for this supervisor): the caller must re-localise globally
+  and re-plan, then build a new supervisor (passing the same filter keeps its state).
+
+GOAL_REACHED and LOST are final: later ticks still update the filter but repeat the final
+decision (with ``confirmed_node`` None).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass, replace
+from typing import Hashable, Optional, Sequence, Tuple
+
+import numpy as np
+
+from controllers.config import NavigationConfig
+from controllers.localisation import plain_node_ids, similarity_row
+from controllers.similarity_filter import SimilarityFilter
+
+NodeId = Hashable
+
+
+class SupervisorState(enum.Enum):
+    """The supervisor's state after a tick."""
+
+    LEAVING = "leaving"            # at the current node, heading for the target node
+    APPROACHING = "approaching"    # left the current node, waiting to confirm the target
+    GOAL_REACHED = "goal_reached"  # final: the last path node was confirmed
+    LOST = "lost"                  # final: re-localise globally and re-plan
+
+
+@dataclass(frozen=True)
+class SupervisorDecision:
+    """The supervisor's output for one tick. Scores are filtered similarities (cosines)."""
+
+    state: SupervisorState
+    path_index: int                        # i: position of the current node on the path
+    current_node: NodeId                   # L_i, the last confirmed node
+    target_node: Optional[NodeId]          # L_i+1, steered towards; None once the goal is reached
+    current_score: float                   # filtered similarity to L_i
+    target_score: Optional[float]          # filtered similarity to L_i+1
+    window_nodes: Tuple[NodeId, ...]       # the path nodes matched this tick, in path order
+    window_scores: Tuple[float, ...]       # their filtered similarities
+    confirmed_node: Optional[NodeId]       # a node confirmed (reached) this tick, if any
+    lost_ticks: int                        # consecutive ticks with the window below t_lost
+    reason: str
+
+    @property
+    def relocalise(self) -> bool:
+        """True when the caller must re-localise globally and re-plan."""
+        return self.state is SupervisorState.LOST
+
+    @property
+    def target_changed(self) -> bool:
+        """True when this tick confirmed a node, so the target node moved on."""
+        return self.confirmed_node is not None
+
+    @property
+    def best_window_score(self) -> float:
+        return max(self.window_scores)
+
+
+class NodeSwitchSupervisor:
+    """Tick-based node switching along one planned path.
+
+    ``node_ids[j]`` names the node of column ``j`` of every similarity row. The path starts at
+    a node the caller has already localised (the current node at construction).
+    """
+
+    def __init__(self, path: Sequence[NodeId], node_ids: Sequence[NodeId],
+                 config: NavigationConfig = NavigationConfig(),
+                 similarity_filter: Optional[SimilarityFilter] = None):
+        if len(path) == 0:
+            raise ValueError("the path must hold at least one node")
+        self.node_ids = plain_node_ids(node_ids)
+        self._column = {node: j for j, node in enumerate(self.node_ids)}
+        missing = [node for node in path if node not in self._column]
+        if missing:
+            raise ValueError(f"path node {missing[0]!r} has no column in the similarity rows")
+        self.path = plain_node_ids(path)
+        self._path_columns = np.array([self._column[node] for node in self.path])
+        self.config = config
+        self.filter = similarity_filter or SimilarityFilter(len(self.node_ids), config.filter)
+        if self.filter.size != len(self.node_ids):
+            raise ValueError(f"the similarity filter has {self.filter.size} columns, the map "
+                             f"{len(self.node_ids)} nodes")
+        self._index = 0
+        self._state = SupervisorState.LEAVING
+        self._lost_ticks = 0
+        self._ticks_since_progress = 0
+        self._final: Optional[SupervisorDecision] = None
+
+    @property
+    def index(self) -> int:
+        """Position of the current node on the path."""
+        return self._index
+
+    @property
+    def state(self) -> SupervisorState:
+        return self._state
+
+    @property
+    def target_node(self) -> Optional[NodeId]:
+        """The node the robot steers towards (None once at the last node)."""
+        return self.path[self._index + 1] if self._index + 1 < len(self.path) else None
+
+    def window(self) -> range:
+        """The path positions matched at the current node."""
+        cfg = self.config.supervisor
+        last = len(self.path) - 1
+        return range(max(0, self._index - cfg.window_behind),
+                     min(last, self._index + cfg.window_ahead) + 1)
+
+    def tick(self, similarities: np.ndarray) -> SupervisorDecision:
+        """Filter one similarity row (current view against every node) and decide."""
+        row = similarity_row(similarities, len(self.node_ids))
+        filtered = self.filter.update(row)
+        if self._final is not None:
+            return replace(self._final, confirmed_node=None)
+        path_scores = filtered[self._path_columns]
+        thresholds = self.config.thresholds
+        last = len(self.path) - 1
+        self._ticks_since_progress += 1
+        confirmed: Optional[NodeId] = None
+        reason = ""
+
+        if last == 0:
+            return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[0],
+                                "the start node is the goal node")
+
+        here = float(path_scores[self._index])
+        ahead = self._confirmable_ahead(path_scores, here)
+        if ahead is not None:
+            passed = self.path[self._index + 1:ahead]
+            confirmed = self.path[ahead]
+            self._index, self._state = ahead, SupervisorState.LEAVING
+            self._ticks_since_progress = 0
+            reason = (f"reached node {confirmed!r}: filtered {path_scores[ahead]:.3f} > t_milestone "
+                      f"{thresholds.t_milestone:.3f}")
+            if passed:
+                reason += f" (skipped {', '.join(map(repr, passed))}, passed unnoticed)"
+            if ahead == last:
+                return self._finish(SupervisorState.GOAL_REACHED, path_scores, confirmed,
+                                    "goal " + reason)
+        elif self._state is SupervisorState.LEAVING and here < thresholds.t_change_node:
+            self._state = SupervisorState.APPROACHING
+            reason = (f"left node {self.path[self._index]!r}: filtered {here:.3f} < t_change_node "
+                      f"{thresholds.t_change_node:.3f}; switching to {self.target_node!r}")
+
+        window = self.window()
+        best = float(path_scores[window.start:window.stop].max())
+        self._lost_ticks = self._lost_ticks + 1 if best < thresholds.t_lost else 0
+        cfg = self.config.supervisor
+        if self._lost_ticks >= cfg.lost_patience_ticks:
+            return self._finish(SupervisorState.LOST, path_scores, confirmed,
+                                f"lost: best filtered score in the window {best:.3f} < t_lost "
+                                f"{thresholds.t_lost:.3f} for {self._lost_ticks} ticks")
+        if self._ticks_since_progress >= cfg.progress_patience_ticks:
+            return self._finish(SupervisorState.LOST, path_scores, confirmed,
+                                f"lost: no node confirmed for {self._ticks_since_progress} ticks")
+        if not reason:
+            target = self.path[self._index + 1]
+            reason = (f"{self._state.value} {self.path[self._index]!r} -> {target!r}: filtered "
+                      f"{here:.3f} / {path_scores[self._index + 1]:.3f}")
+        return self._decision(self._state, path_scores, confirmed, reason)
+
+    def _confirmable_ahead(self, path_scores: np.ndarray, here: float) -> Optional[int]:
+        """The path position ahead (inside the window) to confirm this tick, if any."""
+        window = self.window()
+        first = self._index + 1
+        if first >= window.stop:
+            return None
+        scores = path_scores[first:window.stop]
+        k = int(np.argmax(scores))  # ties: the nearest node
+        score = float(scores[k])
+        if score <= self.config.thresholds.t_milestone:
+            return None
+        if self._state is SupervisorState.LEAVING and score <= here:
+            return None
+        return first + k
+
+    def _decision(self, state: SupervisorState, path_scores: np.ndarray,
+                  confirmed: Optional[NodeId], reason: str) -> SupervisorDecision:
+        window = self.window()
+        i = self._index
+        target = self.target_node
+        return SupervisorDecision(
+            state=state, path_index=i, current_node=self.path[i], target_node=target,
+            current_score=float(path_scores[i]),
+            target_score=float(path_scores[i + 1]) if target is not None else None,
+            window_nodes=tuple(self.path[p] for p in window),
+            window_scores=tuple(float(path_scores[p]) for p in window),
+            confirmed_node=confirmed, lost_ticks=self._lost_ticks, reason=reason)
+
+    def _finish(self, state: SupervisorState, path_scores: np.ndarray,
+                confirmed: Optional[NodeId], reason: str) -> SupervisorDecision:
+        self._state = state
+        if state is SupervisorState.GOAL_REACHED:
+            self._index = len(self.path) - 1
+        self._final = self._decision(state, path_scores, confirmed, reason)
+        return self._final

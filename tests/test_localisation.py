@@ -1,0 +1,122 @@
+"""Initial / global localisation: accept above T_milestone, else turn counter-clockwise."""
+
+import math
+
+import numpy as np
+import pytest
+
+from controllers.actions import Action
+from controllers.config import LocaliserConfig, NavigationConfig
+from controllers.localisation import (GoalNotLocalisedError, InitialLocaliser, LocalisationError,
+                                      LocaliserStatus, TurnMeter, localise, localise_goal_image)
+from tests.synthetic_places import SyntheticPlaces, chain, drive, offset
+
+T = 0.66
+NODES = (10, 11, 12, 13)
+
+
+def test_accepts_the_best_node_above_threshold_only():
+    hit = localise(np.array([0.30, 0.71, 0.52, 0.40]), NODES, T)
+    assert hit.accepted and hit.node == 11 and hit.best_score == pytest.approx(0.71)
+    miss = localise(np.array([0.30, 0.60, 0.52, 0.40]), NODES, T)
+    assert not miss.accepted and miss.node is None and miss.best_node == 11
+    at_threshold = localise(np.array([0.30, T, 0.52, 0.40]), NODES, T)
+    assert not at_threshold.accepted   # must exceed
+
+
+def test_goal_image_matching_nothing_says_how_close_it_came():
+    with pytest.raises(GoalNotLocalisedError) as info:
+        localise_goal_image(np.array([0.21, 0.48, 0.33, 0.30]), NODES, T)
+    message = str(info.value)
+    assert "goal image matches no node" in message
+    assert "node 11" in message and "0.480" in message and "0.660" in message
+    assert localise_goal_image(np.array([0.21, 0.48, 0.93, 0.30]), NODES, T).node == 12
+
+
+@pytest.mark.parametrize("row,match", [(np.zeros(3), "one score per map node"),
+                                       (np.zeros((4, 1)), "one score per map node"),
+                                       (np.array([0.1, np.inf, 0.2, 0.3]), "non-finite score at column 1")])
+def test_bad_rows_are_rejected(row, match):
+    with pytest.raises(LocalisationError, match=match):
+        localise(row, NODES, T)
+
+
+def test_turn_meter_accumulates_across_the_wrap_and_counts_clockwise_negative():
+    meter = TurnMeter()
+    headings = [math.atan2(math.sin(0.3 * k), math.cos(0.3 * k)) for k in range(30)]  # wrapped
+    for h in headings:
+        meter.update(h)
+        meter.update(None)          # a tick without heading changes nothing
+    assert meter.turned_rad == pytest.approx(0.3 * 29)
+    back = TurnMeter()
+    for k in range(5):
+        back.update(-0.2 * k)
+    assert back.turned_rad == pytest.approx(-0.8)
+
+
+def test_localises_after_confirm_ticks_without_turning():
+    loc = InitialLocaliser(NODES, T, LocaliserConfig(confirm_ticks=3))
+    row = np.array([0.30, 0.40, 0.80, 0.50])
+    steps = [loc.tick(row, heading_rad=0.0) for _ in range(3)]
+    assert [s.status for s in steps] == [LocaliserStatus.CONFIRMING, LocaliserStatus.CONFIRMING,
+                                         LocaliserStatus.LOCALISED]
+    assert all(s.action is Action.NONE for s in steps)          # holds still, never rotates
+    assert steps[-1].node == 12 and loc.done
+    assert loc.tick(np.zeros(4)).node == 12                      # final state repeats
+
+
+def test_rotates_counter_clockwise_then_gives_up_after_a_full_turn():
+    loc = InitialLocaliser(NODES, T, LocaliserConfig(max_search_ticks=10_000))
+    rate = 0.1
+    row = np.array([0.20, 0.35, 0.31, 0.25])
+    steps = []
+    for k in range(1000):
+        steps.append(loc.tick(row, heading_rad=math.remainder(rate * k, 2 * math.pi)))
+        if loc.done:
+            break
+    assert all(s.action is Action.SEARCH_ROTATE and s.status is LocaliserStatus.ROTATING for s in steps[:-1])
+    final = steps[-1]
+    assert final.status is LocaliserStatus.FAILED and final.action is Action.STOP
+    assert "cannot place itself" in final.reason and "node 11" in final.reason
+    # gave up on the first tick whose accumulated heading reached 2 pi, not later
+    assert final.turned_rad >= 2 * math.pi
+    assert final.ticks == math.ceil(round(2 * math.pi / rate, 9)) + 1
+
+
+def test_gives_up_on_the_tick_budget_without_heading():
+    loc = InitialLocaliser(NODES, T, LocaliserConfig(max_search_ticks=25))
+    statuses = [loc.tick(np.full(4, 0.2)).status for _ in range(30)]
+    assert statuses.index(LocaliserStatus.FAILED) == 24
+    assert "25 search ticks" in loc.tick(np.full(4, 0.2)).reason
+
+
+def test_a_single_lucky_frame_during_the_search_does_not_localise():
+    loc = InitialLocaliser(NODES, T, LocaliserConfig(confirm_ticks=3))
+    low, lucky = np.full(4, 0.3), np.array([0.3, 0.9, 0.3, 0.3])
+    assert loc.tick(low, 0.0).action is Action.SEARCH_ROTATE
+    lucky_step = loc.tick(lucky, 0.1)
+    assert lucky_step.status is LocaliserStatus.CONFIRMING and lucky_step.action is Action.NONE
+    resumed = loc.tick(low, 0.2)
+    assert resumed.status is LocaliserStatus.ROTATING and resumed.action is Action.SEARCH_ROTATE
+    # a change of candidate restarts the streak as well
+    loc.tick(lucky, 0.2)
+    loc.tick(lucky, 0.2)
+    other = loc.tick(np.array([0.3, 0.3, 0.9, 0.3]), 0.2)
+    assert other.status is LocaliserStatus.CONFIRMING and "(1/3)" in other.reason
+
+
+def test_robot_facing_away_turns_until_it_recognises_its_node():
+    graph, poses = chain(5)
+    places = SyntheticPlaces(poses, seed=7, noise_std=0.03)
+    config = NavigationConfig()
+    loc = InitialLocaliser(places.node_ids, config.thresholds.t_milestone, config.localiser)
+    pose = offset(poses[2], yaw_rad=math.pi * 0.9)       # looking back along the chain
+    speeds = config.speeds
+    for _ in range(200):
+        step = loc.tick(places.similarities(pose), heading_rad=pose.yaw_rad)
+        if loc.done:
+            break
+        if step.action is Action.SEARCH_ROTATE:
+            pose = drive(pose, speeds.search_rotate, 0.1)
+    assert step.status is LocaliserStatus.LOCALISED and step.node == 2
+    assert 0.5 < step.turned_rad < 2 * math.pi           # it had to turn, less than a full turn
