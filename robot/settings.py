@@ -1,0 +1,46 @@
+"""The stack's configuration: one dataclass per component, read once at the entry point.
+
+``configs/default.yaml`` holds every section; a user file given with ``--config`` is read
+instead of it, and fields it leaves out keep their defaults. Each component's dataclass says
+why each field exists; errors name the file and the dotted field.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from robot.configfile import load_config
+from sim.hal import SimConfig
+from sim.teleop import TeleopConfig
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+CONFIG_DIR = REPO_ROOT / "configs"
+DEFAULT_CONFIG = CONFIG_DIR / "default.yaml"
+
+
+@dataclass(frozen=True)
+class RecordingConfig:
+    every_n_ticks: int = 2        # record every Nth control tick: 5 Hz at the 10 Hz control rate, ~8 cm apart at cruise speed
+    jpeg_quality: int = 95        # high quality so mapping from a recording sees nearly what the live camera sees
+    time_budget_factor: float = 3.0  # give up after this many times the walkthrough's length at cruise speed
+
+    def __post_init__(self) -> None:
+        if self.every_n_ticks < 1:
+            raise ValueError(f"every_n_ticks must be >= 1, got {self.every_n_ticks}")
+        if not 10 <= self.jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality must be within [10, 100], got {self.jpeg_quality}")
+        if self.time_budget_factor < 1.0:
+            raise ValueError(f"time_budget_factor must be >= 1, got {self.time_budget_factor}")
+
+
+@dataclass(frozen=True)
+class StackConfig:
+    sim: SimConfig = field(default_factory=SimConfig)
+    teleop: TeleopConfig = field(default_factory=TeleopConfig)
+    recording: RecordingConfig = field(default_factory=RecordingConfig)
+
+
+def load_stack_config(path: str | Path | None = None) -> StackConfig:
+    """Read the stack configuration (``configs/default.yaml`` when ``path`` is None)."""
+    return load_config(StackConfig, DEFAULT_CONFIG if path is None else path)
