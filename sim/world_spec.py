@@ -190,7 +190,7 @@ class RoutesSpec:
 
 @dataclass(frozen=True, kw_only=True)
 class WorldSpec:
-    """One world. See ``docs/world-format.md`` for every field."""
+    """One world. See the README section "Writing a world" for every field."""
 
     name: str
     description: str = ""
