@@ -1,0 +1,454 @@
+"""The incremental map builder: the paper's "Mapping" section, one frame at a time.
+
+Feed every frame's descriptor (L2-normalised) in walkthrough order with
+:meth:`MapBuilder.add_frame`; call :meth:`MapBuilder.finish` at the end to get the
+:class:`~maps.graph.TopoMap` and a :class:`BuildLog` of every decision. Per frame ``i``:
+
+1. the first frame becomes node 0;
+2. ``M_distance += 1`` when ``sim(frame i, frame i-1) < T_add_distance`` (a still robot adds
+   nothing);
+3. when ``sim(frame i, last node) < T_add_new_node`` (the view drifted away by driving or by
+   turning) and at least ``T_interval`` frames passed since the last node was reached, frame ``i``
+   would become a node. First it is compared with every earlier node except the trivially similar
+   ones (the loop-closure exclusion rule: the last node, the ``loop_exclude_recent_nodes`` nodes
+   visited before it, and nodes whose keyframe is fewer than ``loop_min_gap_frames`` frames
+   old). If the best of them scores above ``T_loop_closure`` it is a loop closure: no node is
+   added, the arc ``last -> matched`` gets weight ``M_distance`` and mapping continues from the
+   matched node. Otherwise frame ``i`` becomes a new node with the arc ``last -> new`` of weight
+   ``M_distance``. Either way ``M_distance`` restarts from 0.
+
+Frame counts (``T_interval``, ``loop_min_gap_frames``, ``M_distance``) count frames fed to the
+builder, so sampling a video with ``--every N`` changes them; ``frame_index`` is only a label
+(e.g. the video frame number) stored with each node.
+
+The walkthrough's end adds no node: its last frames are still similar to the last node (that is
+why no node was added), so that node already stands for them.
+
+:func:`build_map` is the batch form for a recorded walkthrough: calibrate (if asked), build,
+optimise.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import deque
+from dataclasses import asdict, dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from maps.config import MappingConfig, Thresholds
+from maps.graph import MapError, TopoMap
+from robot.hal import Pose2D
+
+#: a descriptor's norm may differ from 1 by this much (float16 storage, accumulated rounding)
+NORM_TOLERANCE = 1e-2
+
+EVENT_KINDS = ("first_node", "node", "loop_closure")
+
+
+class MapBuildError(MapError):
+    """Bad input to the builder (wrong shape, not normalised, frames out of order)."""
+
+
+@dataclass(frozen=True)
+class MapEvent:
+    """One decision of the builder, with the scores behind it.
+
+    ``seq`` is the frame's position in the fed sequence, ``frame_index`` the caller's label.
+    ``node_id`` is the node the builder stands at afterwards: the new node, or the matched node
+    of a loop closure. ``prev_node`` is the node it came from; ``m_distance`` the weight of the
+    arc ``prev_node -> node_id``; ``frames_since_prev`` the frames fed since ``prev_node`` was
+    reached. ``loop_candidate`` / ``loop_score``: the best eligible earlier node and its
+    similarity (``None`` when there was none). ``travelled_m``: true path length since
+    ``prev_node`` (simulator walkthroughs only). ``new_arc``: the event put a new (or cheaper)
+    arc into the map; a loop closure that only follows an arc driven before has it false.
+    """
+
+    kind: str
+    seq: int
+    frame_index: int
+    stamp_s: float
+    node_id: int
+    prev_node: Optional[int] = None
+    score_to_prev_node: Optional[float] = None
+    m_distance: int = 0
+    frames_since_prev: int = 0
+    loop_candidate: Optional[int] = None
+    loop_score: Optional[float] = None
+    travelled_m: Optional[float] = None
+    new_arc: bool = True
+    reason: str = ""
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "MapEvent":
+        return cls(**data)
+
+
+@dataclass(frozen=True)
+class BuildLog:
+    """Everything the builder decided, and the per-frame scores it decided on.
+
+    Per-frame arrays (length = frames fed, index = ``seq``): ``frame_index``, ``stamp_s``,
+    ``sim_to_node`` (similarity to the node the builder stood at before the frame; NaN for the
+    first frame), ``sim_to_prev`` (to the previous frame; NaN for the first), ``m_distance`` (the
+    counter after the frame; 0 right after a node or loop closure) and ``node`` (the node it stands
+    at after the frame).
+    """
+
+    thresholds: Thresholds
+    events: tuple[MapEvent, ...]
+    frame_index: np.ndarray
+    stamp_s: np.ndarray
+    sim_to_node: np.ndarray
+    sim_to_prev: np.ndarray
+    m_distance: np.ndarray
+    node: np.ndarray
+    travelled_m: Optional[float] = None
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.frame_index.shape[0])
+
+    def node_events(self) -> list[MapEvent]:
+        return [e for e in self.events if e.kind in ("first_node", "node")]
+
+    def loop_closure_events(self) -> list[MapEvent]:
+        return [e for e in self.events if e.kind == "loop_closure"]
+
+    @property
+    def deferred_frames(self) -> int:
+        """Frames below ``T_add_new_node`` that had to wait for ``T_interval``."""
+        t = self.thresholds
+        below = np.nan_to_num(self.sim_to_node, nan=1.0) < t.T_add_new_node
+        return int(below.sum()) - (len(self.events) - 1)
+
+    def summary(self) -> dict:
+        """A JSON-able summary: frames, nodes added, loop closures, distances."""
+        loops = self.loop_closure_events()
+        return {
+            "frames": self.n_frames,
+            "nodes_added": len(self.node_events()),
+            "loop_closures": [{"frame_index": e.frame_index, "from_node": e.prev_node,
+                               "to_node": e.node_id, "score": e.loop_score, "new_arc": e.new_arc}
+                              for e in loops],
+            "deferred_by_T_interval": self.deferred_frames,
+            "moving_frames": int(np.count_nonzero(np.nan_to_num(self.sim_to_prev, nan=1.0)
+                                                  < self.thresholds.T_add_distance)),
+            "travelled_m": self.travelled_m,
+            "thresholds": self.thresholds.to_dict(),
+        }
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Plain numpy arrays (events and thresholds as UTF-8 JSON bytes) for an ``.npz``."""
+        meta = {"thresholds": self.thresholds.to_dict(), "travelled_m": self.travelled_m,
+                "events": [e.to_dict() for e in self.events]}
+        return {"frame_index": self.frame_index, "stamp_s": self.stamp_s,
+                "sim_to_node": self.sim_to_node, "sim_to_prev": self.sim_to_prev,
+                "m_distance": self.m_distance, "node": self.node,
+                "meta_json": np.frombuffer(json.dumps(meta).encode("utf-8"), dtype=np.uint8)}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict) -> "BuildLog":
+        """Inverse of :meth:`to_arrays`; raises :class:`MapError` naming a missing or bad item."""
+        names = ("frame_index", "stamp_s", "sim_to_node", "sim_to_prev", "m_distance", "node", "meta_json")
+        for name in names:
+            if name not in arrays:
+                raise MapError(f"build log: missing array {name!r}")
+        n = np.asarray(arrays["frame_index"]).shape
+        for name in names[1:-1]:
+            if np.asarray(arrays[name]).shape != n:
+                raise MapError(f"build log: array {name!r} has shape {np.asarray(arrays[name]).shape}, "
+                               f"expected {n}")
+        try:
+            meta = json.loads(bytes(np.asarray(arrays["meta_json"], dtype=np.uint8)).decode("utf-8"))
+            events = tuple(MapEvent.from_dict(e) for e in meta["events"])
+            thresholds = Thresholds.from_dict(meta["thresholds"])
+        except (ValueError, KeyError, TypeError) as exc:
+            raise MapError(f"build log: unreadable events or thresholds ({exc})") from None
+        return cls(thresholds=thresholds, events=events, travelled_m=meta.get("travelled_m"),
+                   **{k: np.asarray(arrays[k]) for k in names[:-1]})
+
+
+class MapBuilder:
+    """Builds a :class:`TopoMap` from frames fed one at a time (see the module docstring).
+
+    ``dim`` fixes the descriptor dimension; when ``None`` the first frame sets it.
+    """
+
+    def __init__(self, thresholds: Thresholds, dim: Optional[int] = None):
+        if not isinstance(thresholds, Thresholds):
+            raise MapBuildError(f"MapBuilder needs Thresholds, got {type(thresholds).__name__}")
+        self.thresholds = thresholds
+        self._dim = dim
+        self._map: Optional[TopoMap] = None
+        self._events: list[MapEvent] = []
+        self._trace: dict[str, list] = {k: [] for k in
+                                        ("frame_index", "stamp_s", "sim_to_node", "sim_to_prev", "m_distance", "node")}
+        self._node_seq: list[int] = []          # keyframe seq of each node, in row order
+        self._recent: deque[int] = deque(maxlen=thresholds.loop_exclude_recent_nodes + 1)
+        self._seq = -1
+        self._prev_desc: Optional[np.ndarray] = None
+        self._prev_frame_index: Optional[int] = None
+        self._prev_stamp_s = -math.inf
+        self._prev_pose: Optional[Pose2D] = None
+        self._with_poses: Optional[bool] = None
+        self._node = -1                         # the node the builder stands at
+        self._node_desc: Optional[np.ndarray] = None
+        self._anchor_seq = 0                    # seq at which the current node was reached
+        self._m_distance = 0
+        self._travelled_since_m = 0.0
+        self._travelled_total_m = 0.0
+        self._finished = False
+
+    # -- state ---------------------------------------------------------------------------
+    @property
+    def current_node(self) -> Optional[int]:
+        """The node the builder stands at (``None`` before the first frame)."""
+        return None if self._node < 0 else self._node
+
+    @property
+    def n_frames(self) -> int:
+        return self._seq + 1
+
+    @property
+    def n_nodes(self) -> int:
+        return 0 if self._map is None else len(self._map)
+
+    # -- feeding -------------------------------------------------------------------------
+    def add_frame(self, descriptor: np.ndarray, frame_index: int, stamp_s: float,
+                  true_pose: Optional[Pose2D] = None) -> Optional[MapEvent]:
+        """Feed the next frame. Returns the :class:`MapEvent` when the frame started the map,
+        became a node or closed a loop, else ``None``.
+
+        ``descriptor``: (D,) L2-normalised. ``frame_index``: strictly increasing label.
+        ``stamp_s``: non-decreasing seconds. ``true_pose``: simulator ground truth, given for
+        every frame or for none.
+        """
+        if self._finished:
+            raise MapBuildError("add_frame after finish(): start a new MapBuilder")
+        d = self._check_frame(descriptor, frame_index, stamp_s, true_pose)
+        self._seq += 1
+        if self._prev_pose is not None and true_pose is not None:
+            step = self._prev_pose.distance_to(true_pose)
+            self._travelled_since_m += step
+            self._travelled_total_m += step
+
+        if self._map is None:
+            event = self._start(d, frame_index, stamp_s, true_pose)
+            sim_prev = sim_node = math.nan
+        else:
+            sim_prev = float(d @ self._prev_desc)
+            if sim_prev < self.thresholds.T_add_distance:
+                self._m_distance += 1
+            sim_node = float(d @ self._node_desc)
+            event = None
+            if (sim_node < self.thresholds.T_add_new_node
+                    and self._seq - self._anchor_seq >= self.thresholds.T_interval):
+                event = self._would_be_node(d, frame_index, stamp_s, true_pose, sim_node)
+
+        self._prev_desc = d
+        self._prev_frame_index = int(frame_index)
+        self._prev_stamp_s = float(stamp_s)
+        self._prev_pose = true_pose
+        for key, value in (("frame_index", int(frame_index)), ("stamp_s", float(stamp_s)),
+                           ("sim_to_node", sim_node), ("sim_to_prev", sim_prev),
+                           ("m_distance", self._m_distance), ("node", self._node)):
+            self._trace[key].append(value)
+        return event
+
+    def add_frames(self, descriptors: np.ndarray, frame_indices: Optional[Sequence[int]] = None,
+                   stamps_s: Optional[Sequence[float]] = None,
+                   true_poses: Optional[Sequence[Pose2D]] = None, progress: bool = False) -> list[MapEvent]:
+        """Feed (N, D) descriptors in order (labels default to 0..N-1, stamps to the labels)."""
+        x = np.asarray(descriptors)
+        if x.ndim != 2:
+            raise MapBuildError(f"descriptors must be (N, D), got shape {x.shape}")
+        n = x.shape[0]
+        start = self.n_frames
+        idx = list(range(start, start + n)) if frame_indices is None else list(frame_indices)
+        st = [float(i) for i in idx] if stamps_s is None else list(stamps_s)
+        for name, seq in (("frame_indices", idx), ("stamps_s", st)) + (
+                (("true_poses", true_poses),) if true_poses is not None else ()):
+            if len(seq) != n:
+                raise MapBuildError(f"{name} has {len(seq)} entries for {n} descriptors")
+        rows = range(n)
+        if progress:
+            from tqdm import tqdm
+            rows = tqdm(rows, desc="mapping", unit="frame")
+        events = []
+        for k in rows:
+            ev = self.add_frame(x[k], idx[k], st[k], None if true_poses is None else true_poses[k])
+            if ev is not None:
+                events.append(ev)
+        return events
+
+    def finish(self) -> tuple[TopoMap, BuildLog]:
+        """Stop feeding; return the map and the log of decisions."""
+        if self._map is None:
+            raise MapBuildError("no frames were fed: a map needs at least one frame")
+        self._finished = True
+        log = BuildLog(
+            thresholds=self.thresholds, events=tuple(self._events),
+            frame_index=np.asarray(self._trace["frame_index"], dtype=np.int64),
+            stamp_s=np.asarray(self._trace["stamp_s"], dtype=np.float64),
+            sim_to_node=np.asarray(self._trace["sim_to_node"], dtype=np.float32),
+            sim_to_prev=np.asarray(self._trace["sim_to_prev"], dtype=np.float32),
+            m_distance=np.asarray(self._trace["m_distance"], dtype=np.int32),
+            node=np.asarray(self._trace["node"], dtype=np.int32),
+            travelled_m=self._travelled_total_m if self._with_poses else None)
+        return self._map, log
+
+    # -- the rules -----------------------------------------------------------------------
+    def _start(self, d, frame_index, stamp_s, true_pose) -> MapEvent:
+        self._map = TopoMap(d.shape[0])
+        node = self._map.add_node(d, frame_index, stamp_s, true_pose)
+        self._node_seq.append(self._seq)
+        self._reach(node, d)
+        event = MapEvent(kind="first_node", seq=self._seq, frame_index=int(frame_index),
+                         stamp_s=float(stamp_s), node_id=node, reason="the first frame starts the map")
+        self._events.append(event)
+        return event
+
+    def _would_be_node(self, d, frame_index, stamp_s, true_pose, sim_node) -> MapEvent:
+        t = self.thresholds
+        prev, m, since = self._node, self._m_distance, self._seq - self._anchor_seq
+        travelled = self._travelled_since_m if self._with_poses else None
+        cand, cand_score = self._best_loop_candidate(d)
+        why = (f"similarity to node {prev} fell to {sim_node:.3f} < T_add_new_node {t.T_add_new_node:.3f}, "
+               f"{since} frames after it (T_interval {t.T_interval})")
+        common = dict(seq=self._seq, frame_index=int(frame_index), stamp_s=float(stamp_s),
+                      prev_node=prev, score_to_prev_node=sim_node, m_distance=m,
+                      frames_since_prev=since, loop_candidate=cand, loop_score=cand_score,
+                      travelled_m=travelled)
+        if cand is not None and cand_score > t.T_loop_closure:
+            had = self._map.arc(prev, cand) if self._map.has_arc(prev, cand) else None
+            now = self._map.add_arc(prev, cand, weight=m, kind="loop_closure", n_frames=since, length_m=travelled)
+            self._reach(cand, self._map.descriptor(cand))
+            event = MapEvent(kind="loop_closure", node_id=cand, new_arc=now != had, **common,
+                             reason=f"{why}; matches earlier node {cand} at {cand_score:.3f} > "
+                                    f"T_loop_closure {t.T_loop_closure:.3f}: linked {prev} -> {cand} "
+                                    f"(weight {m}) and continued from {cand}")
+        else:
+            node = self._map.add_node(d, frame_index, stamp_s, true_pose)
+            self._node_seq.append(self._seq)
+            self._map.add_arc(prev, node, weight=m, kind="sequential", n_frames=since, length_m=travelled)
+            self._reach(node, d)
+            loop_note = ("no earlier node was eligible for loop closure" if cand is None else
+                         f"best earlier node {cand} scored {cand_score:.3f} <= T_loop_closure "
+                         f"{t.T_loop_closure:.3f}")
+            event = MapEvent(kind="node", node_id=node, **common,
+                             reason=f"{why}; {loop_note}: added node {node} (arc weight {m})")
+        self._events.append(event)
+        return event
+
+    def _best_loop_candidate(self, d: np.ndarray) -> tuple[Optional[int], Optional[float]]:
+        """The most similar node allowed by the exclusion rule, and its score."""
+        t = self.thresholds
+        node_seq = np.asarray(self._node_seq)
+        ids = self._map.node_ids
+        eligible = node_seq <= self._seq - t.loop_min_gap_frames
+        eligible &= ~np.isin(ids, np.asarray(self._recent))
+        if not eligible.any():
+            return None, None
+        scores = np.where(eligible, self._map.descriptors @ d, -np.inf)   # no copy of the matrix
+        k = int(np.argmax(scores))
+        return int(ids[k]), float(scores[k])
+
+    def _reach(self, node: int, desc: np.ndarray) -> None:
+        """Stand at ``node`` from this frame on; restart the distance counter."""
+        self._node = node
+        self._node_desc = np.asarray(desc, dtype=np.float32)
+        self._recent.append(node)
+        self._anchor_seq = self._seq
+        self._m_distance = 0
+        self._travelled_since_m = 0.0
+
+    def _check_frame(self, descriptor, frame_index, stamp_s, true_pose) -> np.ndarray:
+        where = f"frame {frame_index!r}"
+        d = np.array(descriptor, dtype=np.float32)     # a copy: callers may reuse their buffer
+        if self._dim is None:
+            if d.ndim != 1 or d.shape[0] < 1:
+                raise MapBuildError(f"{where}: descriptor must be a 1-D vector, got shape {d.shape}")
+            self._dim = int(d.shape[0])
+        if d.shape != (self._dim,):
+            raise MapBuildError(f"{where}: descriptor has shape {d.shape}, expected ({self._dim},)")
+        if not np.all(np.isfinite(d)):
+            raise MapBuildError(f"{where}: descriptor has NaN or infinite values")
+        norm = float(np.linalg.norm(d))
+        if abs(norm - 1.0) > NORM_TOLERANCE:
+            raise MapBuildError(f"{where}: descriptor norm is {norm:.4f}; descriptors must be L2-normalised")
+        if isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer)):
+            raise MapBuildError(f"{where}: frame_index must be an integer")
+        if self._prev_frame_index is not None and frame_index <= self._prev_frame_index:
+            raise MapBuildError(f"{where}: frame_index must increase (previous was {self._prev_frame_index})")
+        stamp_s = float(stamp_s)
+        if not math.isfinite(stamp_s) or stamp_s < self._prev_stamp_s:
+            raise MapBuildError(f"{where}: stamp_s {stamp_s!r} must be finite and not earlier than "
+                                f"the previous frame's {self._prev_stamp_s!r}")
+        has_pose = true_pose is not None
+        if has_pose and not isinstance(true_pose, Pose2D):
+            raise MapBuildError(f"{where}: true_pose must be a Pose2D, got {type(true_pose).__name__}")
+        if self._with_poses is None:
+            self._with_poses = has_pose
+        elif has_pose != self._with_poses:
+            raise MapBuildError(f"{where}: true_pose must be given for every frame or for none")
+        return d
+
+
+@dataclass(frozen=True)
+class MapBuild:
+    """What :func:`build_map` made. ``calibration`` is ``None`` for explicit thresholds;
+    ``merge`` is ``None`` when the optimisation pass was skipped. ``topomap`` is the final
+    (optimised) map; ``raw_map`` the builder's map before merging."""
+
+    topomap: TopoMap
+    raw_map: TopoMap
+    log: BuildLog
+    thresholds: Thresholds
+    calibration: Optional[object] = None     # maps.calibration.Calibration
+    merge: Optional[object] = None           # maps.optimise.MergeResult
+    warnings: tuple[str, ...] = field(default_factory=tuple)
+
+    def summary(self) -> dict:
+        """JSON-able numbers for a person (and ``summary.json``): frames, nodes, loop closures,
+        merges, and metres when the walkthrough had true poses."""
+        out = self.log.summary()
+        lengths = [a.length_m for a in self.topomap.arcs() if a.kind == "sequential" and a.length_m is not None]
+        out.update({
+            "nodes": len(self.topomap), "nodes_before_merge": len(self.raw_map), "arcs": self.topomap.n_arcs,
+            "merged_nodes": {str(k): v for k, v in self.merge.merged.items()} if self.merge is not None else {},
+            "mean_arc_length_m": float(np.mean(lengths)) if lengths else None,
+            "calibrated": self.calibration is not None, "warnings": list(self.warnings),
+        })
+        return out
+
+
+def build_map(descriptors: np.ndarray, config: MappingConfig, *,
+              frame_indices: Optional[Sequence[int]] = None, stamps_s: Optional[Sequence[float]] = None,
+              true_poses: Optional[Sequence[Pose2D]] = None, optimise: bool = True,
+              progress: bool = False) -> MapBuild:
+    """Batch mapping of a recorded walkthrough: thresholds (calibrated or explicit), the
+    builder over every frame, then the merge pass with ``T_merge``."""
+    from maps.calibration import calibrate
+    from maps.optimise import merge_near_duplicates
+
+    x = np.asarray(descriptors, dtype=np.float32)
+    calibration = None
+    if config.calibrated:
+        calibration = calibrate(x, config)
+        thresholds = calibration.thresholds
+    else:
+        thresholds = config.explicit_thresholds()
+    builder = MapBuilder(thresholds, dim=x.shape[1] if x.ndim == 2 else None)
+    builder.add_frames(x, frame_indices, stamps_s, true_poses, progress=progress)
+    raw, log = builder.finish()
+    merge = merge_near_duplicates(raw, thresholds) if optimise else None
+    final = merge.topomap if merge is not None else raw
+    warnings = tuple(calibration.warnings) if calibration is not None else ()
+    return MapBuild(topomap=final, raw_map=raw, log=log, thresholds=thresholds,
+                    calibration=calibration, merge=merge, warnings=warnings)

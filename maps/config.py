@@ -1,0 +1,133 @@
+"""Mapping configuration: the paper's thresholds, or a request to derive them from the walkthrough.
+
+Two objects:
+
+* :class:`MappingConfig` is what a person writes in ``configs/`` (loaded with
+  ``robot.configfile.load_config(MappingConfig, path)``): explicit thresholds, plus
+  ``calibrated`` and the single ``sparsity`` knob used when the thresholds are derived
+  automatically (see :mod:`maps.calibration`).
+* :class:`Thresholds` is the set of numbers a map was actually built with. It is what the
+  builder and the optimisation pass take, and what the map file records.
+
+All similarities are cosines of L2-normalised descriptors, so they lie in [-1, 1]. All frame
+counts are counted in frames *fed to the builder* (after any ``--every N`` sampling), not in the
+caller's frame labels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Mapping
+
+
+def _check_similarity(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and -1.0 <= value <= 1.0):
+        raise ValueError(f"{name}: a cosine similarity must be a finite number in [-1, 1], got {value!r}")
+
+
+def _check_count(name: str, value: int, least: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise ValueError(f"{name}: expected an integer >= {least}, got {value!r}")
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """The numbers a map is built with (explicit or calibrated); recorded in the map file.
+
+    See :class:`MappingConfig` for what each one does.
+    """
+
+    T_add_new_node: float
+    T_interval: int
+    T_add_distance: float
+    T_loop_closure: float
+    T_merge: float
+    loop_min_gap_frames: int
+    loop_exclude_recent_nodes: int
+
+    def __post_init__(self) -> None:
+        for name in ("T_add_new_node", "T_add_distance", "T_loop_closure", "T_merge"):
+            _check_similarity(name, getattr(self, name))
+        _check_count("T_interval", self.T_interval, 1)
+        _check_count("loop_min_gap_frames", self.loop_min_gap_frames, 0)
+        _check_count("loop_exclude_recent_nodes", self.loop_exclude_recent_nodes, 0)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, object]) -> "Thresholds":
+        """Rebuild from :meth:`to_dict`; raises ``ValueError`` naming a missing or bad field."""
+        names = [f for f in cls.__dataclass_fields__]
+        missing = [n for n in names if n not in data]
+        if missing:
+            raise ValueError(f"thresholds: missing field {missing[0]!r}")
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise ValueError(f"thresholds: unknown field {unknown[0]!r}")
+        return cls(**{n: data[n] for n in names})
+
+
+@dataclass(frozen=True)
+class MappingConfig:
+    """How to turn a walkthrough into a topological map (paper section "Mapping").
+
+    Explicit thresholds (used as they are when ``calibrated`` is false):
+
+    * ``T_add_new_node`` -- a frame becomes a new node when its similarity to the last node drops
+      below this. It is the paper's only node-addition rule and covers both of its cases: the view
+      drifts away as the robot drives on (distance) or swings away as it turns (turning). Lower
+      means sparser maps.
+    * ``T_interval`` -- the least number of frames between a node and the next one. Stops a fast
+      turn or a glitchy frame from dropping a burst of nodes. Higher means sparser maps.
+    * ``T_add_distance`` -- the relative-distance counter ``M_distance`` grows by one only on a
+      frame whose similarity to the previous frame is below this, so a robot standing still (or a
+      paused video) adds no distance. The counter becomes the weight of the arc into the next node,
+      which Dijkstra later minimises.
+    * ``T_loop_closure`` -- a frame that would become a node but matches an existing (not recent)
+      node above this is not added; the previous node is linked to the matched one and mapping
+      continues from it. Too low joins different places that look alike.
+    * ``T_merge`` -- the optimisation pass merges two non-neighbouring nodes whose similarity is at
+      least this (the paper's "lower T_loop_closure after the fact"), rewiring their arcs.
+    * ``loop_min_gap_frames`` -- a node is a loop-closure candidate only if its keyframe is at
+      least this many frames before the current frame. Frames close in time are trivially similar;
+      matching them would be a false loop.
+    * ``loop_exclude_recent_nodes`` -- the current node and this many nodes visited just before it
+      are never loop-closure candidates, and the optimisation pass never merges nodes this many
+      arcs apart or closer, for the same reason (they are neighbours, not revisits).
+
+    Automatic mode:
+
+    * ``calibrated`` -- derive every threshold above except ``loop_exclude_recent_nodes`` from the
+      walkthrough's own similarity statistics (:func:`maps.calibration.calibrate`); the explicit
+      values are then ignored. This answers the paper's main limitation, manual tuning.
+    * ``sparsity`` -- the one knob of the calibrated mode, 0..1: how far the similarity to the last
+      node may decay, from "next frame" (0, dense) towards "unrelated place" (1, sparse), before a
+      new node is added. 0.5 adds a node when the similarity has fallen half way.
+    """
+
+    T_add_new_node: float = 0.6
+    T_interval: int = 5
+    T_add_distance: float = 0.98
+    T_loop_closure: float = 0.8
+    T_merge: float = 0.75
+    loop_min_gap_frames: int = 50
+    loop_exclude_recent_nodes: int = 3
+    calibrated: bool = True
+    sparsity: float = 0.5
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.calibrated, bool):
+            raise ValueError(f"calibrated: expected true or false, got {self.calibrated!r}")
+        if not (isinstance(self.sparsity, (int, float)) and math.isfinite(self.sparsity)
+                and 0.0 <= self.sparsity <= 1.0):
+            raise ValueError(f"sparsity: expected a number in [0, 1], got {self.sparsity!r}")
+        self.explicit_thresholds()   # validates the explicit values with field names
+
+    def explicit_thresholds(self) -> Thresholds:
+        """The explicit thresholds of this config (what ``calibrated: false`` builds with)."""
+        return Thresholds(T_add_new_node=self.T_add_new_node, T_interval=self.T_interval,
+                          T_add_distance=self.T_add_distance, T_loop_closure=self.T_loop_closure,
+                          T_merge=self.T_merge, loop_min_gap_frames=self.loop_min_gap_frames,
+                          loop_exclude_recent_nodes=self.loop_exclude_recent_nodes)

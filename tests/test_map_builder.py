@@ -1,0 +1,289 @@
+"""The map builder and the optimisation pass on scripted descriptor sequences (no images).
+
+Sequences are unit vectors turning in planes by known angles, so every similarity is a known
+cosine; expected node frames come from those cosines, not from the builder.
+"""
+
+from __future__ import annotations
+
+import math
+
+import networkx as nx
+import numpy as np
+import pytest
+
+from maps.builder import MapBuilder, MapBuildError, build_map
+from maps.config import MappingConfig, Thresholds
+from maps.graph import MapError, TopoMap
+from maps.optimise import merge_near_duplicates
+from robot.hal import Pose2D
+from tests.map_synthetic import arc_sequence
+
+
+def thresholds(**kw) -> Thresholds:
+    base = dict(T_add_new_node=0.85, T_interval=1, T_add_distance=0.9999, T_loop_closure=0.9,
+                T_merge=0.9, loop_min_gap_frames=30, loop_exclude_recent_nodes=2)
+    base.update(kw)
+    return Thresholds(**base)
+
+
+def run(x: np.ndarray, t: Thresholds, **kw):
+    b = MapBuilder(t)
+    b.add_frames(x, **kw)
+    return b.finish()
+
+
+def node_seqs(log) -> list[int]:
+    return [e.seq for e in log.node_events()]
+
+
+def expected_node_frames(sim, n_frames: int, t_add: float, t_interval: int) -> list[int]:
+    """The paper's node rule applied to an analytic similarity function sim(i, j)."""
+    nodes = [0]
+    for i in range(1, n_frames):
+        if sim(i, nodes[-1]) < t_add and i - nodes[-1] >= t_interval:
+            nodes.append(i)
+    return nodes
+
+
+# -- node addition -----------------------------------------------------------------------
+def test_distance_case_adds_a_node_each_time_similarity_decays_below_threshold():
+    step = 0.05
+    x = arc_sequence(np.full(59, step))            # 60 frames, sim(i, j) = cos(step * |i - j|)
+    topo, log = run(x, thresholds(loop_min_gap_frames=10_000))
+    k = math.ceil(math.acos(0.85) / step + 1e-9)   # frames until cos drops below 0.85
+    assert node_seqs(log) == list(range(0, 60, k))
+    assert len(topo) == len(range(0, 60, k))
+    for arc in topo.arcs():                        # a chain of driven arcs, each k moving frames
+        assert arc.kind == "sequential" and arc.dst == arc.src + 1
+        assert arc.weight == k and arc.n_frames == k
+    first = log.node_events()[1]
+    assert first.score_to_prev_node < 0.85 <= math.cos(step * (k - 1))
+    assert "T_add_new_node" in first.reason
+
+
+def _drive_and_turn() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """4-D descriptors (cos p, sin p, cos h, sin h) / sqrt(2): position angle p grows while
+    driving, heading angle h while turning in place; sim = (cos dp + cos dh) / 2."""
+    dp = np.r_[np.full(100, 0.02), np.zeros(12), np.full(60, 0.02)]
+    dh = np.r_[np.zeros(100), np.full(12, 0.25), np.zeros(60)]
+    p = np.r_[0.0, np.cumsum(dp)]
+    h = np.r_[0.0, np.cumsum(dh)]
+    x = np.stack([np.cos(p), np.sin(p), np.cos(h), np.sin(h)], axis=1) / math.sqrt(2)
+    return x.astype(np.float32), p, h
+
+
+def test_turning_case_adds_nodes_quickly_while_turning_in_place():
+    x, p, h = _drive_and_turn()
+    sim = lambda i, j: (math.cos(p[i] - p[j]) + math.cos(h[i] - h[j])) / 2   # noqa: E731
+    # a driving step changes sim by only 1e-4 here, so the motion threshold sits closer to 1
+    topo, log = run(x, thresholds(loop_min_gap_frames=10_000, T_add_distance=0.99995))
+    expected = expected_node_frames(sim, len(x), 0.85, 1)
+    assert node_seqs(log) == expected
+    in_turn = [s for s in expected if 100 < s <= 112]
+    driving = [b - a for a, b in zip(expected, expected[1:]) if b <= 100]
+    assert len(in_turn) >= 2, "a 3-radian turn in place must add nodes (case 2)"
+    assert max(b - a for a, b in zip(in_turn, in_turn[1:])) < min(driving) / 4
+    # turning changes the view, so it counts as relative distance too
+    assert all(topo.arc(a.src, a.dst).weight == a.n_frames for a in topo.arcs())
+
+
+def test_T_interval_is_the_least_number_of_frames_between_nodes():
+    x, p, h = _drive_and_turn()
+    sim = lambda i, j: (math.cos(p[i] - p[j]) + math.cos(h[i] - h[j])) / 2   # noqa: E731
+    _, fast = run(x, thresholds(loop_min_gap_frames=10_000))
+    topo, slow = run(x, thresholds(T_interval=6, loop_min_gap_frames=10_000))
+    seqs = node_seqs(slow)
+    assert seqs == expected_node_frames(sim, len(x), 0.85, 6)
+    assert min(b - a for a, b in zip(seqs, seqs[1:])) >= 6
+    in_turn = lambda log: [s for s in node_seqs(log) if 100 < s <= 112]   # noqa: E731
+    assert len(in_turn(slow)) < len(in_turn(fast))
+    assert slow.deferred_frames > 0 and fast.deferred_frames == 0
+    assert any(e.frames_since_prev == 6 for e in slow.node_events())
+
+
+def test_standing_still_adds_no_distance_and_no_node():
+    steps = np.full(79, 0.05)
+    moving = arc_sequence(steps)
+    still = np.r_[moving[:21], np.repeat(moving[20:21], 50, axis=0), moving[21:]]   # 50 frames standing at 20
+    topo_a, log_a = run(moving, thresholds(loop_min_gap_frames=10_000))
+    topo_b, log_b = run(still, thresholds(loop_min_gap_frames=10_000))
+    shifted = [s if s <= 20 else s + 50 for s in node_seqs(log_a)]
+    assert node_seqs(log_b) == shifted
+    assert [a.weight for a in topo_b.arcs()] == [a.weight for a in topo_a.arcs()]
+    # while standing, the counter and the current node do not change
+    standing = slice(21, 71)
+    assert np.all(log_b.m_distance[standing] == log_b.m_distance[20])
+    assert np.all(log_b.node[standing] == log_b.node[20])
+    assert np.all(log_b.sim_to_prev[standing] >= 0.9999)
+
+
+def test_arc_weight_counts_only_frames_that_moved():
+    rng = np.random.default_rng(3)
+    big = rng.random(120) < 0.5
+    steps = np.where(big, 0.04, 1e-5)          # 1e-5 rad: sim(i, i-1) > T_add_distance, counts nothing
+    x = arc_sequence(steps)
+    topo, log = run(x, thresholds(loop_min_gap_frames=10_000))
+    seqs = node_seqs(log)
+    assert len(seqs) >= 3
+    for arc, (a, b) in zip(topo.arcs(), zip(seqs, seqs[1:])):
+        assert arc.weight == int(big[a:b].sum())          # steps a..b-1 lead into frames a+1..b
+        assert arc.n_frames == b - a
+
+
+# -- loop closure ------------------------------------------------------------------------
+def test_loop_closure_links_previous_node_to_matched_node_and_adds_no_duplicate():
+    step = 0.05
+    x = arc_sequence(np.full(199, step))            # 1.6 turns of a circle
+    angle = step * np.arange(200)
+    topo, log = run(x, thresholds())
+    loops = log.loop_closure_events()
+    assert loops, "coming back to the start must close the loop"
+    first = loops[0]
+    assert all(e.seq < first.seq for e in log.node_events()), "no node after the loop closed"
+    node_angle = {e.node_id: angle[e.seq] for e in log.node_events()}
+    for e in loops:
+        diffs = {n: abs(math.remainder(angle[e.seq] - a, 2 * math.pi)) for n, a in node_angle.items()}
+        assert e.loop_score == pytest.approx(math.cos(diffs[e.node_id]), abs=1e-5)
+        assert e.loop_score > 0.9
+    assert first.prev_node == max(node_angle)       # from the last new node ...
+    arc = topo.arc(first.prev_node, first.node_id)  # ... to the best-matching earlier node
+    assert arc.kind == "loop_closure" and arc.weight == first.m_distance and first.new_arc
+    # afterwards the walk retraces the first turn: it hops along the old nodes, adding no arcs
+    assert len(loops) > 1 and not any(e.new_arc for e in loops[1:])
+    assert [e.node_id for e in loops[1:]] == sorted(e.node_id for e in loops[1:])
+    assert nx.find_cycle(topo.graph)
+    # without loop closure the same walk duplicates the places of the first turn
+    no_loop, _ = run(x, thresholds(T_loop_closure=1.0))
+    assert len(no_loop) > len(topo)
+    assert not no_loop.loop_closures()
+
+
+@pytest.mark.parametrize("gap, recent, closes", [(30, 2, False), (0, 1, False), (0, 0, True)])
+def test_loop_closure_exclusion_rule(gap, recent, closes):
+    # look right for 12 frames, then back: the frame that leaves node 1 looks like node 0 again
+    x = arc_sequence(np.r_[np.full(12, 0.05), np.full(14, -0.05)])
+    topo, log = run(x, thresholds(loop_min_gap_frames=gap, loop_exclude_recent_nodes=recent))
+    assert bool(log.loop_closure_events()) is closes
+    assert len(topo) == (2 if closes else 3)
+
+
+def test_builder_refuses_bad_frames():
+    b = MapBuilder(thresholds())
+    b.add_frame(np.array([1.0, 0.0, 0.0], np.float32), 0, 0.0)
+    with pytest.raises(MapBuildError, match="shape"):
+        b.add_frame(np.array([1.0, 0.0], np.float32), 1, 0.1)
+    with pytest.raises(MapBuildError, match="L2-normalised"):
+        b.add_frame(np.array([2.0, 0.0, 0.0], np.float32), 1, 0.1)
+    with pytest.raises(MapBuildError, match="NaN"):
+        b.add_frame(np.array([np.nan, 0.0, 0.0], np.float32), 1, 0.1)
+    with pytest.raises(MapBuildError, match="frame_index must increase"):
+        b.add_frame(np.array([1.0, 0.0, 0.0], np.float32), 0, 0.1)
+    with pytest.raises(MapBuildError, match="every frame or for none"):
+        b.add_frame(np.array([1.0, 0.0, 0.0], np.float32), 1, 0.1, Pose2D(0, 0, 0))
+    with pytest.raises(MapBuildError, match="no frames"):
+        MapBuilder(thresholds()).finish()
+
+
+def test_thresholds_and_config_validate_with_field_names():
+    with pytest.raises(ValueError, match="T_add_new_node"):
+        thresholds(T_add_new_node=1.5)
+    with pytest.raises(ValueError, match="T_interval"):
+        thresholds(T_interval=0)
+    with pytest.raises(ValueError, match="sparsity"):
+        MappingConfig(sparsity=2.0)
+    with pytest.raises(ValueError, match="T_loop_closure"):
+        MappingConfig(T_loop_closure=float("nan"))
+
+
+def test_poses_give_true_lengths_on_arcs():
+    x = arc_sequence(np.full(59, 0.05))
+    poses = [Pose2D(0.1 * i, 0.0, 0.0) for i in range(60)]
+    topo, log = run(x, thresholds(loop_min_gap_frames=10_000), true_poses=poses)
+    assert topo.has_true_poses
+    for arc in topo.arcs():
+        assert arc.length_m == pytest.approx(0.1 * arc.n_frames)
+    assert log.travelled_m == pytest.approx(5.9)
+
+
+# -- the optimisation pass ---------------------------------------------------------------
+def _chain_map(descs: np.ndarray, extra_arcs=()) -> TopoMap:
+    topo = TopoMap(descs.shape[1])
+    for k, d in enumerate(descs):
+        topo.add_node(d, keyframe_index=10 * k, stamp_s=float(k))
+    for k in range(len(descs) - 1):
+        topo.add_arc(k, k + 1, weight=10, kind="sequential", n_frames=20)
+    for src, dst, w in extra_arcs:
+        topo.add_arc(src, dst, weight=w, kind="sequential", n_frames=20)
+    return topo
+
+
+def test_merge_rewires_arcs_keeping_direction_and_the_cheaper_parallel_arc():
+    rng = np.random.default_rng(0)
+    d = rng.standard_normal((7, 64))
+    d[4] = d[1] + 0.1 * rng.standard_normal(64)     # node 4 shows node 1's place again
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    # 0->1->2->3->4->5->6, plus 1->5 (expensive) and 6->4 (will become 6->1)
+    topo = _chain_map(d.astype(np.float32), extra_arcs=[(1, 5, 50), (6, 4, 7)])
+    t = thresholds(T_merge=0.9, loop_min_gap_frames=30, loop_exclude_recent_nodes=1)
+    result = merge_near_duplicates(topo, t)
+    out = result.topomap
+    assert result.merged == {4: 1}
+    assert 4 not in out and len(out) == 6
+    arcs = {(a.src, a.dst): a for a in out.arcs()}
+    assert set(arcs) == {(0, 1), (1, 2), (2, 3), (3, 1), (1, 5), (5, 6), (6, 1)}
+    assert arcs[(3, 1)].kind == "merged"                  # was 3 -> 4, direction kept
+    assert arcs[(1, 5)].weight == 10 and arcs[(1, 5)].kind == "merged"   # 4->5 (10) beat 1->5 (50)
+    assert arcs[(0, 1)].kind == "sequential"
+    assert all(a.src != a.dst for a in out.arcs())
+    np.testing.assert_array_equal(out.descriptor(1), topo.descriptor(1))   # the earlier node is kept
+
+
+def test_merge_drops_self_loops_and_never_merges_route_neighbours():
+    rng = np.random.default_rng(1)
+    d = rng.standard_normal((5, 64))
+    d[2] = d[1] + 0.05 * rng.standard_normal(64)    # neighbours that look alike: not a revisit
+    d[4] = d[3] + 0.05 * rng.standard_normal(64)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    topo = _chain_map(d.astype(np.float32))
+    t = thresholds(T_merge=0.9, loop_min_gap_frames=0, loop_exclude_recent_nodes=1)
+    assert merge_near_duplicates(topo, t).merged == {}
+    far = _chain_map(d.astype(np.float32)[[0, 1, 2, 3, 4]], extra_arcs=[(1, 3, 5)])
+    # 1 -> 3 makes 1 and 3 neighbours; 2 and 4 are not alike; nothing to merge either
+    assert merge_near_duplicates(far, t).merged == {}
+
+
+def test_merge_pass_on_a_walk_that_missed_its_loop_closure():
+    x = arc_sequence(np.full(199, 0.05))
+    raw, _ = run(x, thresholds(T_loop_closure=1.0))        # the builder never closes the loop
+    result = merge_near_duplicates(raw, thresholds(T_merge=0.95))
+    out = result.topomap
+    assert result.merged and len(out) == len(raw) - len(result.merged)
+    assert any(a.kind == "merged" for a in out.arcs())
+    assert nx.find_cycle(out.graph)
+    for removed, kept in result.merged.items():
+        assert float(raw.descriptor(removed) @ raw.descriptor(kept)) >= 0.95
+        assert raw.node(kept).keyframe_index < raw.node(removed).keyframe_index
+    assert all(a.src in out and a.dst in out and a.src != a.dst for a in out.arcs())
+
+
+def test_build_map_with_explicit_thresholds_runs_builder_and_merge():
+    x = arc_sequence(np.full(199, 0.05))
+    cfg = MappingConfig(calibrated=False, T_add_new_node=0.85, T_interval=1, T_add_distance=0.9999,
+                        T_loop_closure=0.9, T_merge=0.9, loop_min_gap_frames=30, loop_exclude_recent_nodes=2)
+    made = build_map(x, cfg)
+    assert made.calibration is None and made.thresholds == cfg.explicit_thresholds()
+    assert made.log.n_frames == 200 and made.log.loop_closure_events()
+    assert len(made.topomap) <= len(made.raw_map)
+
+
+def test_topomap_refuses_bad_arcs():
+    topo = _chain_map(np.eye(3, dtype=np.float32))
+    with pytest.raises(MapError, match="self-loop"):
+        topo.add_arc(1, 1, 1.0, "sequential")
+    with pytest.raises(MapError, match="unknown node"):
+        topo.add_arc(0, 9, 1.0, "sequential")
+    with pytest.raises(MapError, match="kind"):
+        topo.add_arc(0, 2, 1.0, "teleport")
+    assert topo.add_arc(0, 1, 3.0, "loop_closure").weight == 3.0      # cheaper replaces
+    assert topo.add_arc(0, 1, 8.0, "sequential").kind == "loop_closure"   # dearer is ignored
