@@ -165,8 +165,14 @@ class EmulatorConfig:
     error_bits: int = 0
     seed: int = 0
     faults: EmulatorFaults = EmulatorFaults()
+    #: the longest time one model step may cover: after a longer stall of the firmware thread the
+    #: base does not jump ahead (a model that must follow wall time, like the PyBullet twin whose
+    #: renders stall every thread, may allow more)
+    max_step_s: float = 0.1
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.max_step_s) and self.max_step_s > 0):
+            raise EmulatorError(f"max_step_s must be a positive number of seconds, got {self.max_step_s!r}")
         if not self.feedback_rate_hz > 0:
             raise EmulatorError(f"feedback_rate_hz must be positive, got {self.feedback_rate_hz!r}")
         if not self.command_timeout_s > 0:
@@ -333,7 +339,7 @@ class LimoEmulator:
                 self._receive()
             now = time.monotonic()
             if now >= next_feedback:
-                self._advance(now, min(now - last, 0.1))  # a stalled thread must not teleport the base
+                self._advance(now, min(now - last, self.config.max_step_s))  # a stall must not teleport the base
                 last = now
                 next_feedback += period
                 if next_feedback < now:  # fell behind (busy machine): do not burst to catch up

@@ -475,7 +475,7 @@ def _monitor(argv: Optional[list] = None) -> int:
         prog="python -m robot.limo_serial",
         description="Connect to a Limo base (or the emulator) and print its feedback: battery, error "
                     "bits, wheel odometry, gyro yaw rate, fused heading, link counters. Streams ZERO "
-                    "velocity the whole time: use it for the first-run checklist (README, "Running on a real Limo").")
+                    "velocity the whole time: use it for the first-run checklist (README, 'Running on a real Limo').")
     parser.add_argument("--config", help="LimoSerialConfig YAML (port, baud, odometry_unit_m, ...)")
     parser.add_argument("--port", help="device or pyserial URL; overrides the config (default /dev/ttyTHS1)")
     parser.add_argument("--baud", type=int, help="baud rate; overrides the config (default 460800)")

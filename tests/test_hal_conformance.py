@@ -36,10 +36,24 @@ def _serial_limo_on_emulator() -> RobotBase:
     return EmulatedSerialLimo(LimoSerialConfig(control_period_s=0.05))
 
 
+def _serial_twin_in_hospital() -> RobotBase:
+    """The serial backend over a pty to the emulator backed by the PyBullet Limo and sim camera."""
+    from robot.limo_serial import LimoSerialConfig
+    from sim.serial_twin import SerialTwinLimo
+    from sim.world_spec import load_world
+
+    world = load_world("hospital")
+    (x0, y0), (x1, y1) = world.routes.walkthrough[:2]
+    return SerialTwinLimo(world, SimConfig(width_px=64, height_px=48),
+                          Pose2D(x0, y0, math.atan2(y1 - y0, x1 - x0)),
+                          serial_config=LimoSerialConfig(control_period_s=0.05))
+
+
 BACKENDS = {
     "sim": _sim_limo,
     "sim-hospital": _sim_limo_in_hospital,
     "serial-emulated": _serial_limo_on_emulator,
+    "serial-twin-hospital": _serial_twin_in_hospital,
 }
 
 
