@@ -1,6 +1,9 @@
-"""The product's entry point: ``python -m robot.run --mode map|...``.
+"""The product's entry point: ``python -m robot.run --mode map|show``.
 
-    python -m robot.run --mode map [--world hospital] [--out DIR]   # teleop mapping run
+    python -m robot.run --mode map [--world hospital] [--out DIR]   # teleop drive, then the map
+    python -m robot.run --mode map --video FILE [--every-s 0.5]     # a map from a video, no robot
+    python -m robot.run --mode map --images DIR [--every 2]         # a map from an image folder
+    python -m robot.run --mode show --map DIR                       # the map's pictures
 
 Configuration is read once here (``configs/default.yaml`` or ``--config FILE``) and passed down.
 Every error a user can cause ends in one clear line on stderr and a non-zero exit code; the
@@ -23,8 +26,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m robot.run",
         description="Teach a route by driving it once, then navigate it with one camera.")
-    parser.add_argument("--mode", required=True, choices=["map"],
-                        help="map: drive the world's walkthrough with the scripted teleoperator and record it")
+    parser.add_argument("--mode", required=True, choices=["map", "show"],
+                        help="map: drive the world's walkthrough with the scripted teleoperator, record it and "
+                             "build the topological map (or map a --video / --images without a robot); "
+                             "show: draw a map's pictures")
     parser.add_argument("--world", default="hospital",
                         help="a world name from configs/worlds (hospital, office) or a path to a world YAML file")
     parser.add_argument("--out", type=Path, default=None,
@@ -36,22 +41,92 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=None,
                         help="simulator noise seed (overrides sim.seed of the configuration)")
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
+    source = parser.add_argument_group("mapping from a recording (no robot)")
+    src = source.add_mutually_exclusive_group()
+    src.add_argument("--video", type=Path, help="build the map from this video file")
+    src.add_argument("--images", type=Path, help="build the map from the images of this folder (name order)")
+    src.add_argument("--recording", type=Path, help="build the map from a drive recorded earlier by --mode map")
+    sampling = source.add_mutually_exclusive_group()
+    sampling.add_argument("--every", type=int, default=1, metavar="N", help="keep every Nth frame (default 1)")
+    sampling.add_argument("--every-s", type=float, default=None, metavar="S", help="keep one frame every S seconds")
+    parser.add_argument("--map", type=Path, default=None,
+                        help="map folder (default <out>/map); for --mode show, the map to draw")
+    parser.add_argument("--no-map", action="store_true", help="--mode map: record the drive only")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 
-def _mode_map(args, config) -> int:
-    from sim.world_spec import load_world
-    from robot.walkthrough import drive_walkthrough
+def _make_descriptor(config):
+    from robot.descriptors.factory import make_descriptor
 
-    world = load_world(args.world)
-    out = args.out if args.out is not None else Path("runs") / world.name
-    result = drive_walkthrough(world, config, out, appearance_seed=args.appearance_seed, progress=not args.quiet)
-    s = result.summary
-    print(f"recorded {s['frames']} frames, {s['metres_driven']:.1f} m in {s['duration_s']:.0f} s simulated, "
-          f"{s['collisions']} collisions -> {result.out_dir}")
-    print(f"  summary: {result.out_dir / 'summary.json'}   picture: {result.out_dir / 'world.png'}")
+    return make_descriptor(config.descriptor.backend, **config.descriptor.settings)
+
+
+def _print_map_summary(summary: dict, map_dir: Path) -> None:
+    metres = summary.get("mean_arc_length_m")
+    spacing = f", mean spacing {metres:.2f} m" if metres else ""
+    print(f"map: {summary['frames_read']} frames read -> {summary['nodes']} nodes "
+          f"({summary.get('nodes_before_merge', summary['nodes'])} before merging), "
+          f"{summary.get('loop_closures', 0)} loop closures{spacing} -> {map_dir}")
+    print(f"  pictures: {map_dir / 'map.png'}  {map_dir / 'similarity.png'}")
+    for warning in summary.get("warnings", []):
+        print(f"  warning: {warning}")
+
+
+def _mode_map(args, config) -> int:
+    from robot.frame_sources import ImageFolderSource, RecordingSource, Sampling, VideoSource
+    from robot.map_building import build_map_from_frames, world_picture_of, write_json_atomic
+
+    sampling = Sampling(every_n=args.every, every_s=args.every_s)
+    world_picture = None
+    if args.video or args.images:
+        source = VideoSource(args.video, sampling) if args.video else ImageFolderSource(args.images, sampling)
+        name = (args.video or args.images).stem
+        out = args.out if args.out is not None else Path("runs") / name
+        summary: dict = {}
+    elif args.recording:
+        out = args.recording
+        summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").is_file() else {}
+        source = RecordingSource(out, sampling)
+        world_picture = world_picture_of(summary.get("world"), int(summary.get("appearance_seed", 0)))
+    else:
+        from robot.walkthrough import drive_walkthrough
+        from sim.world_spec import load_world
+
+        world = load_world(args.world)
+        out = args.out if args.out is not None else Path("runs") / world.name
+        result = drive_walkthrough(world, config, out, appearance_seed=args.appearance_seed, progress=not args.quiet)
+        summary = result.summary
+        print(f"recorded {summary['frames']} frames, {summary['metres_driven']:.1f} m in "
+              f"{summary['duration_s']:.0f} s simulated, {summary['collisions']} collisions -> {out}")
+        print(f"  summary: {out / 'summary.json'}   picture: {out / 'world.png'}")
+        if args.no_map:
+            return 0
+        source = RecordingSource(out, sampling)
+        world_picture = world_picture_of(world, args.appearance_seed)
+    map_dir = args.map if args.map is not None else out / "map"
+    built = build_map_from_frames(source, _make_descriptor(config), config.mapping, map_dir, total=len(source),
+                                  world_picture=world_picture, fit_max_frames=config.descriptor.fit_max_frames,
+                                  source=source.description, progress=not args.quiet,
+                                  extra={k: summary[k] for k in ("world", "appearance_seed") if k in summary})
+    out.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(out / "summary.json", {**summary, "map": str(map_dir), **built.summary})
+    _print_map_summary(built.summary, map_dir)
     return 0
+
+
+def _mode_show(args, config) -> int:
+    from robot.map_building import draw_saved_map
+
+    if args.map is None:
+        raise UsageError("--mode show needs --map DIR")
+    for path in draw_saved_map(args.map):
+        print(f"wrote {path}")
+    return 0
+
+
+class UsageError(ValueError):
+    """Arguments that do not fit together."""
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -60,6 +135,9 @@ def main(argv: list[str] | None = None) -> int:
 
     from robot.configfile import ConfigError
     from robot.hal import HalError
+    from maps.graph import MapError
+    from robot.descriptors.base import DescriptorError
+    from robot.frame_sources import FrameSourceError
     from robot.recording import RecordingError
     from robot.settings import load_stack_config
     from robot.walkthrough import DriveError
@@ -70,8 +148,8 @@ def main(argv: list[str] | None = None) -> int:
             sim = replace(config.sim, seed=config.sim.seed if args.seed is None else args.seed,
                           gui=args.gui or config.sim.gui)
             config = replace(config, sim=sim)
-        return {"map": _mode_map}[args.mode](args, config)
-    except (ConfigError, RecordingError) as exc:
+        return {"map": _mode_map, "show": _mode_show}[args.mode](args, config)
+    except (ConfigError, RecordingError, FrameSourceError, MapError, DescriptorError, UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
     except (DriveError, HalError) as exc:

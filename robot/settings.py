@@ -9,7 +9,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from maps.config import MappingConfig
 from robot.configfile import load_config
 from sim.hal import SimConfig
 from sim.teleop import TeleopConfig
@@ -35,10 +37,23 @@ class RecordingConfig:
 
 
 @dataclass(frozen=True)
+class DescriptorConfig:
+    backend: str = "effnet-vlad"   # place descriptor: see robot/descriptors/factory.py for the names
+    settings: dict[str, Any] = field(default_factory=dict)   # backend settings (layer, resolution, clusters, ...)
+    fit_max_frames: int = 300      # the VLAD vocabulary is fitted on this many evenly spaced walkthrough frames
+
+    def __post_init__(self) -> None:
+        if self.fit_max_frames < 10:
+            raise ValueError(f"fit_max_frames must be >= 10, got {self.fit_max_frames}")
+
+
+@dataclass(frozen=True)
 class StackConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     teleop: TeleopConfig = field(default_factory=TeleopConfig)
     recording: RecordingConfig = field(default_factory=RecordingConfig)
+    descriptor: DescriptorConfig = field(default_factory=DescriptorConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
 
 
 def load_stack_config(path: str | Path | None = None) -> StackConfig:
