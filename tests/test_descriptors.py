@@ -44,7 +44,7 @@ def test_packaged_weights_classify_a_real_cat():
 def test_effnet_vlad_implements_the_protocol(fitted, photos):
     assert isinstance(fitted, Descriptor)
     x = fitted.describe(photos)
-    assert x.shape == (len(photos), 8 * 112) and x.dtype == np.float32
+    assert x.shape == (len(photos), 8 * 192) and x.dtype == np.float32
     np.testing.assert_allclose(np.linalg.norm(x, axis=1), 1.0, atol=1e-5)
     assert fitted.identity.dim == x.shape[1]
     assert len(fitted.identity.vocabulary_sha256) == 64

