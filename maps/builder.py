@@ -12,10 +12,21 @@ Feed every frame's descriptor (L2-normalised) in walkthrough order with
    would become a node. First it is compared with every earlier node except the trivially similar
    ones (the loop-closure exclusion rule: the last node, the ``loop_exclude_recent_nodes`` nodes
    visited before it, and nodes whose keyframe is fewer than ``loop_min_gap_frames`` frames
-   old). If the best of them scores above ``T_loop_closure`` it is a loop closure: no node is
-   added, the arc ``last -> matched`` gets weight ``M_distance`` and mapping continues from the
-   matched node. Otherwise frame ``i`` becomes a new node with the arc ``last -> new`` of weight
-   ``M_distance``. Either way ``M_distance`` restarts from 0.
+   old). If the best of them scores above ``T_loop_closure`` it is a loop-closure candidate,
+   checked by sequence verification (:func:`check_sequence`): frame ``i`` and the
+   ``loop_verify_frames`` frames after it must keep matching the old route from the candidate
+   on (a position tracked along the old arcs as the robot drives), on average at least
+   ``T_loop_verify`` and better than any other node, and for at least half of the frames.
+   Confirmed, it is a loop closure: no node is added, the arc ``last -> matched`` gets weight
+   ``M_distance`` and mapping continues from the matched node (the paper's rule). Otherwise (no
+   candidate, or a rejected one, logged with its scores) frame ``i`` becomes a new node with the
+   arc ``last -> new`` of weight ``M_distance``. Either way ``M_distance`` restarts from 0.
+
+Verification looks ahead, so the decision about frame ``i`` waits until the frames after it have
+been fed (or :meth:`MapBuilder.finish` is called: then the frames fed so far decide). The frames
+it waited for are then processed as usual, from wherever the decision left the builder; the
+result is exactly what a builder that could see ahead would make. With
+``loop_verify_frames: 0`` every decision is immediate and the rule is the paper's.
 
 Frame counts (``T_interval``, ``loop_min_gap_frames``, ``M_distance``) count frames fed to the
 builder, so sampling a video with ``--every N`` changes them; ``frame_index`` is only a label
@@ -34,7 +45,7 @@ import json
 import math
 from collections import deque
 from dataclasses import asdict, dataclass, field
-from typing import Optional, Sequence
+from typing import Collection, Optional, Sequence
 
 import numpy as np
 
@@ -46,6 +57,9 @@ from robot.hal import Pose2D
 NORM_TOLERANCE = 1e-2
 
 EVENT_KINDS = ("first_node", "node", "loop_closure")
+
+
+
 
 
 class MapBuildError(MapError):
@@ -64,6 +78,11 @@ class MapEvent:
     similarity (``None`` when there was none). ``travelled_m``: true path length since
     ``prev_node`` (simulator walkthroughs only). ``new_arc``: the event put a new (or cheaper)
     arc into the map; a loop closure that only follows an arc driven before has it false.
+
+    Sequence verification (when the candidate scored above ``T_loop_closure``): ``verify_frames``
+    frames compared, ``verify_support`` / ``verify_rival`` their mean best similarity to the
+    candidate's region / to any other node (see :class:`SequenceCheck`). ``loop_rejected``: a
+    ``node`` event whose candidate failed verification.
     """
 
     kind: str
@@ -80,6 +99,10 @@ class MapEvent:
     travelled_m: Optional[float] = None
     new_arc: bool = True
     reason: str = ""
+    verify_frames: int = 0
+    verify_support: Optional[float] = None
+    verify_rival: Optional[float] = None
+    loop_rejected: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -120,12 +143,17 @@ class BuildLog:
     def loop_closure_events(self) -> list[MapEvent]:
         return [e for e in self.events if e.kind == "loop_closure"]
 
+    def rejected_loop_events(self) -> list[MapEvent]:
+        """Node events whose loop-closure candidate failed sequence verification."""
+        return [e for e in self.events if e.loop_rejected]
+
     @property
     def deferred_frames(self) -> int:
         """Frames below ``T_add_new_node`` that had to wait for ``T_interval``."""
         t = self.thresholds
         below = np.nan_to_num(self.sim_to_node, nan=1.0) < t.T_add_new_node
-        return int(below.sum()) - (len(self.events) - 1)
+        decided = sum(1 for e in self.events if e.kind in ("node", "loop_closure"))
+        return int(below.sum()) - decided
 
     def summary(self) -> dict:
         """A JSON-able summary: frames, nodes added, loop closures, distances."""
@@ -134,8 +162,13 @@ class BuildLog:
             "frames": self.n_frames,
             "nodes_added": len(self.node_events()),
             "loop_closures": [{"frame_index": e.frame_index, "from_node": e.prev_node,
-                               "to_node": e.node_id, "score": e.loop_score, "new_arc": e.new_arc}
+                               "to_node": e.node_id, "score": e.loop_score, "new_arc": e.new_arc,
+                               "verify_support": e.verify_support}
                               for e in loops],
+            "loop_closures_rejected": [{"frame_index": e.frame_index, "node": e.node_id,
+                                        "candidate": e.loop_candidate, "score": e.loop_score,
+                                        "verify_support": e.verify_support, "verify_rival": e.verify_rival}
+                                       for e in self.rejected_loop_events()],
             "deferred_by_T_interval": self.deferred_frames,
             "moving_frames": int(np.count_nonzero(np.nan_to_num(self.sim_to_prev, nan=1.0)
                                                   < self.thresholds.T_add_distance)),
@@ -174,6 +207,113 @@ class BuildLog:
                    **{k: np.asarray(arrays[k]) for k in names[:-1]})
 
 
+@dataclass(frozen=True)
+class SequenceCheck:
+    """The outcome of :func:`check_sequence`.
+
+    ``frames``: descriptors compared (the candidate's frame included). ``support``: their mean
+    similarity to the tracked node of the candidate's stretch of route; ``rival``: their mean best
+    similarity to any other eligible node (``None`` when there is none); ``wins``: the fraction of
+    them whose best match lies on the tracked stretch. ``path``: the tracked nodes, in order.
+    """
+
+    frames: int
+    support: float
+    rival: Optional[float]
+    wins: float
+    path: tuple[int, ...]
+    accepted: bool
+
+
+def route_region(topomap: TopoMap, node: int, hops: int, forward: bool = True,
+                 exclude: Collection[int] = ()) -> list[int]:
+    """``node`` and the nodes up to ``hops`` arcs after it (``forward``) or before it, following
+    arc directions (the stretch of route a robot at ``node`` drives into, or came from), minus
+    ``exclude``, in breadth-first order (``node`` first unless excluded)."""
+    g = topomap.graph
+    seen, frontier = [node], [node]
+    for _ in range(hops):
+        nxt = []
+        for n in frontier:
+            for m in (g.successors(n) if forward else g.predecessors(n)):
+                if m not in seen:
+                    seen.append(m)
+                    nxt.append(m)
+        frontier = nxt
+    skip = set(exclude)
+    return [n for n in seen if n not in skip]
+
+
+def check_sequence(window: np.ndarray, topomap: TopoMap, start: int, *, eligible: Collection[int],
+                   hops: int, min_support: float, forward: bool = True) -> SequenceCheck:
+    """Does a stretch of frames keep following one stretch of the map? (SeqSLAM-like)
+
+    ``window`` (K, D): the candidate frame first, then the frames after it (or, with
+    ``forward=False``, the frames before it, latest first). The check tracks a position along
+    the map's arcs: it starts at ``start`` and, frame by frame, moves to whichever node within
+    ``hops`` arcs ahead (behind, when not ``forward``) of it matches the frame best, so a real
+    revisit is followed as the robot drives on. Each frame's score on the stretch is compared
+    with its best score at any other node of ``eligible`` (the nodes a loop closure could go to).
+
+    Accepted when the mean score on the stretch is at least ``min_support``, above the mean best
+    score elsewhere, and the stretch has the best match for at least half of the frames. Two
+    look-alike corners match each other for a while, but once the routes through them part the
+    true place wins; a real revisit keeps matching.
+    """
+    w = np.asarray(window, dtype=np.float32)
+    if w.ndim != 2 or w.shape[0] == 0:
+        raise MapBuildError(f"check_sequence needs (K >= 1, D) frames, got shape {w.shape}")
+    ids = topomap.node_ids.tolist()
+    row = {n: k for k, n in enumerate(ids)}
+    eligible = set(int(n) for n in eligible)
+    if start not in eligible:
+        raise MapBuildError(f"check_sequence: start node {start} is not among the eligible nodes")
+    sims = w @ topomap.descriptors.T                                   # (K, N)
+    pos, path, on_route = start, [start], {start}
+    own, best_other = [], []
+    for k in range(w.shape[0]):
+        reach = [n for n in route_region(topomap, pos, hops, forward=forward) if n in eligible]
+        on_route.update(reach)
+        scores = sims[k, [row[n] for n in reach]]
+        pos = reach[int(np.argmax(scores))]
+        if pos != path[-1]:
+            path.append(pos)
+        own.append(float(scores.max()))
+        others = [row[n] for n in eligible if n not in on_route]
+        best_other.append(float(sims[k, others].max()) if others else -np.inf)
+    own_a, other_a = np.asarray(own), np.asarray(best_other)
+    support = float(own_a.mean())
+    has_rivals = bool(np.isfinite(other_a).all())
+    rival = float(other_a.mean()) if has_rivals else None
+    wins = float(np.mean(own_a > other_a))
+    accepted = support >= min_support and (rival is None or (support > rival and wins >= 0.5))
+    return SequenceCheck(frames=int(w.shape[0]), support=support, rival=rival, wins=wins,
+                         path=tuple(path), accepted=bool(accepted))
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """A checked frame waiting to be processed."""
+
+    d: np.ndarray
+    frame_index: int
+    stamp_s: float
+    true_pose: Optional[Pose2D]
+
+
+@dataclass
+class _Pending:
+    """A loop-closure candidate waiting for the frames that verify it."""
+
+    frame: _Frame
+    sim_node: float
+    sim_prev: float
+    candidate: int
+    score: float
+    eligible: list[int]
+    window: list[_Frame] = field(default_factory=list)
+
+
 class MapBuilder:
     """Builds a :class:`TopoMap` from frames fed one at a time (see the module docstring).
 
@@ -191,12 +331,15 @@ class MapBuilder:
                                         ("frame_index", "stamp_s", "sim_to_node", "sim_to_prev", "m_distance", "node")}
         self._node_seq: list[int] = []          # keyframe seq of each node, in row order
         self._recent: deque[int] = deque(maxlen=thresholds.loop_exclude_recent_nodes + 1)
-        self._seq = -1
-        self._prev_desc: Optional[np.ndarray] = None
-        self._prev_frame_index: Optional[int] = None
-        self._prev_stamp_s = -math.inf
-        self._prev_pose: Optional[Pose2D] = None
+        self._inbox: deque[_Frame] = deque()    # checked frames not processed yet
+        self._pending: Optional[_Pending] = None
+        self._fed = 0
+        self._seq = -1                          # position of the last processed frame
+        self._last_checked_index: Optional[int] = None
+        self._last_checked_stamp_s = -math.inf
         self._with_poses: Optional[bool] = None
+        self._prev_desc: Optional[np.ndarray] = None
+        self._prev_pose: Optional[Pose2D] = None
         self._node = -1                         # the node the builder stands at
         self._node_desc: Optional[np.ndarray] = None
         self._anchor_seq = 0                    # seq at which the current node was reached
@@ -208,12 +351,14 @@ class MapBuilder:
     # -- state ---------------------------------------------------------------------------
     @property
     def current_node(self) -> Optional[int]:
-        """The node the builder stands at (``None`` before the first frame)."""
+        """The node the builder stands at (``None`` before the first frame). While a loop
+        closure waits for verification it is the node before the candidate frame."""
         return None if self._node < 0 else self._node
 
     @property
     def n_frames(self) -> int:
-        return self._seq + 1
+        """Frames fed so far (some may wait for a verification to be processed)."""
+        return self._fed
 
     @property
     def n_nodes(self) -> int:
@@ -221,9 +366,10 @@ class MapBuilder:
 
     # -- feeding -------------------------------------------------------------------------
     def add_frame(self, descriptor: np.ndarray, frame_index: int, stamp_s: float,
-                  true_pose: Optional[Pose2D] = None) -> Optional[MapEvent]:
-        """Feed the next frame. Returns the :class:`MapEvent` when the frame started the map,
-        became a node or closed a loop, else ``None``.
+                  true_pose: Optional[Pose2D] = None) -> list[MapEvent]:
+        """Feed the next frame; return the decisions this frame completed (usually none or one,
+        see :class:`MapEvent`). A decision that needs sequence verification comes out
+        ``loop_verify_frames`` frames later, followed by those of the frames that waited for it.
 
         ``descriptor``: (D,) L2-normalised. ``frame_index``: strictly increasing label.
         ``stamp_s``: non-decreasing seconds. ``true_pose``: simulator ground truth, given for
@@ -232,34 +378,9 @@ class MapBuilder:
         if self._finished:
             raise MapBuildError("add_frame after finish(): start a new MapBuilder")
         d = self._check_frame(descriptor, frame_index, stamp_s, true_pose)
-        self._seq += 1
-        if self._prev_pose is not None and true_pose is not None:
-            step = self._prev_pose.distance_to(true_pose)
-            self._travelled_since_m += step
-            self._travelled_total_m += step
-
-        if self._map is None:
-            event = self._start(d, frame_index, stamp_s, true_pose)
-            sim_prev = sim_node = math.nan
-        else:
-            sim_prev = float(d @ self._prev_desc)
-            if sim_prev < self.thresholds.T_add_distance:
-                self._m_distance += 1
-            sim_node = float(d @ self._node_desc)
-            event = None
-            if (sim_node < self.thresholds.T_add_new_node
-                    and self._seq - self._anchor_seq >= self.thresholds.T_interval):
-                event = self._would_be_node(d, frame_index, stamp_s, true_pose, sim_node)
-
-        self._prev_desc = d
-        self._prev_frame_index = int(frame_index)
-        self._prev_stamp_s = float(stamp_s)
-        self._prev_pose = true_pose
-        for key, value in (("frame_index", int(frame_index)), ("stamp_s", float(stamp_s)),
-                           ("sim_to_node", sim_node), ("sim_to_prev", sim_prev),
-                           ("m_distance", self._m_distance), ("node", self._node)):
-            self._trace[key].append(value)
-        return event
+        self._fed += 1
+        self._inbox.append(_Frame(d, int(frame_index), float(stamp_s), true_pose))
+        return self._drain(final=False)
 
     def add_frames(self, descriptors: np.ndarray, frame_indices: Optional[Sequence[int]] = None,
                    stamps_s: Optional[Sequence[float]] = None,
@@ -282,15 +403,17 @@ class MapBuilder:
             rows = tqdm(rows, desc="mapping", unit="frame")
         events = []
         for k in rows:
-            ev = self.add_frame(x[k], idx[k], st[k], None if true_poses is None else true_poses[k])
-            if ev is not None:
-                events.append(ev)
+            events.extend(self.add_frame(x[k], idx[k], st[k], None if true_poses is None else true_poses[k]))
         return events
 
     def finish(self) -> tuple[TopoMap, BuildLog]:
-        """Stop feeding; return the map and the log of decisions."""
-        if self._map is None:
+        """Stop feeding: decide a waiting verification on the frames there are, process the
+        rest, and return the map and the log of decisions."""
+        if self._finished:
+            raise MapBuildError("finish() was called already")
+        if self._fed == 0:
             raise MapBuildError("no frames were fed: a map needs at least one frame")
+        self._drain(final=True)
         self._finished = True
         log = BuildLog(
             thresholds=self.thresholds, events=tuple(self._events),
@@ -303,61 +426,150 @@ class MapBuilder:
             travelled_m=self._travelled_total_m if self._with_poses else None)
         return self._map, log
 
-    # -- the rules -----------------------------------------------------------------------
-    def _start(self, d, frame_index, stamp_s, true_pose) -> MapEvent:
-        self._map = TopoMap(d.shape[0])
-        node = self._map.add_node(d, frame_index, stamp_s, true_pose)
-        self._node_seq.append(self._seq)
-        self._reach(node, d)
-        event = MapEvent(kind="first_node", seq=self._seq, frame_index=int(frame_index),
-                         stamp_s=float(stamp_s), node_id=node, reason="the first frame starts the map")
-        self._events.append(event)
-        return event
+    # -- the queue: frames wait while a loop closure is being verified -----------------
+    def _drain(self, final: bool) -> list[MapEvent]:
+        first_new = len(self._events)
+        while True:
+            if self._pending is not None:
+                if len(self._pending.window) >= self.thresholds.loop_verify_frames:
+                    self._resolve()
+                elif self._inbox:
+                    self._pending.window.append(self._inbox.popleft())
+                elif final:
+                    self._resolve()
+                else:
+                    break
+            elif self._inbox:
+                self._process(self._inbox.popleft())
+            else:
+                break
+        return self._events[first_new:]
 
-    def _would_be_node(self, d, frame_index, stamp_s, true_pose, sim_node) -> MapEvent:
+    def _process(self, f: _Frame) -> None:
+        self._seq += 1
+        if self._prev_pose is not None and f.true_pose is not None:
+            step = self._prev_pose.distance_to(f.true_pose)
+            self._travelled_since_m += step
+            self._travelled_total_m += step
+        if self._map is None:
+            self._start(f)
+            self._done_with(f, math.nan, math.nan)
+            return
+        sim_prev = float(f.d @ self._prev_desc)
+        if sim_prev < self.thresholds.T_add_distance:
+            self._m_distance += 1
+        sim_node = float(f.d @ self._node_desc)
         t = self.thresholds
-        prev, m, since = self._node, self._m_distance, self._seq - self._anchor_seq
-        travelled = self._travelled_since_m if self._with_poses else None
-        cand, cand_score = self._best_loop_candidate(d)
+        if sim_node < t.T_add_new_node and self._seq - self._anchor_seq >= t.T_interval:
+            cand, score, eligible_rows = self._best_loop_candidate(f.d)
+            if cand is not None and score > t.T_loop_closure:
+                # a candidate: wait for the frames that confirm or refute it
+                self._pending = _Pending(frame=f, sim_node=sim_node, sim_prev=sim_prev,
+                                         candidate=cand, score=score,
+                                         eligible=self._map.node_ids[eligible_rows].tolist())
+                return
+            self._add_node(f, sim_node, cand, score, None)
+        self._done_with(f, sim_node, sim_prev)
+
+    def _resolve(self) -> None:
+        """Decide the waiting candidate, then put the frames it waited for back in line."""
+        p, self._pending = self._pending, None
+        window = np.stack([p.frame.d] + [w.d for w in p.window])
+        check = check_sequence(window, self._map, p.candidate, eligible=p.eligible,
+                               hops=self.thresholds.loop_verify_hops, min_support=self.thresholds.T_loop_verify)
+        if check.accepted:
+            self._close_loop(p.frame, p.sim_node, p.candidate, p.score, check)
+        else:
+            self._add_node(p.frame, p.sim_node, p.candidate, p.score, check)
+        self._done_with(p.frame, p.sim_node, p.sim_prev)
+        self._inbox.extendleft(reversed(p.window))
+
+    def _done_with(self, f: _Frame, sim_node: float, sim_prev: float) -> None:
+        self._prev_desc = f.d
+        self._prev_pose = f.true_pose
+        for key, value in (("frame_index", f.frame_index), ("stamp_s", f.stamp_s),
+                           ("sim_to_node", sim_node), ("sim_to_prev", sim_prev),
+                           ("m_distance", self._m_distance), ("node", self._node)):
+            self._trace[key].append(value)
+
+    # -- the rules -----------------------------------------------------------------------
+    def _start(self, f: _Frame) -> None:
+        self._map = TopoMap(f.d.shape[0])
+        node = self._map.add_node(f.d, f.frame_index, f.stamp_s, f.true_pose)
+        self._node_seq.append(self._seq)
+        self._reach(node, f.d)
+        self._events.append(MapEvent(kind="first_node", seq=self._seq, frame_index=f.frame_index,
+                                     stamp_s=f.stamp_s, node_id=node, reason="the first frame starts the map"))
+
+    def _common(self, f: _Frame, sim_node: float, cand: Optional[int], score: Optional[float],
+                check: Optional[SequenceCheck]) -> tuple[dict, str]:
+        t = self.thresholds
+        prev, since = self._node, self._seq - self._anchor_seq
+        common = dict(seq=self._seq, frame_index=f.frame_index, stamp_s=f.stamp_s, prev_node=prev,
+                      score_to_prev_node=sim_node, m_distance=self._m_distance, frames_since_prev=since,
+                      loop_candidate=cand, loop_score=score,
+                      travelled_m=self._travelled_since_m if self._with_poses else None)
+        if check is not None:
+            common.update(verify_frames=check.frames, verify_support=check.support, verify_rival=check.rival)
         why = (f"similarity to node {prev} fell to {sim_node:.3f} < T_add_new_node {t.T_add_new_node:.3f}, "
                f"{since} frames after it (T_interval {t.T_interval})")
-        common = dict(seq=self._seq, frame_index=int(frame_index), stamp_s=float(stamp_s),
-                      prev_node=prev, score_to_prev_node=sim_node, m_distance=m,
-                      frames_since_prev=since, loop_candidate=cand, loop_score=cand_score,
-                      travelled_m=travelled)
-        if cand is not None and cand_score > t.T_loop_closure:
-            had = self._map.arc(prev, cand) if self._map.has_arc(prev, cand) else None
-            now = self._map.add_arc(prev, cand, weight=m, kind="loop_closure", n_frames=since, length_m=travelled)
-            self._reach(cand, self._map.descriptor(cand))
-            event = MapEvent(kind="loop_closure", node_id=cand, new_arc=now != had, **common,
-                             reason=f"{why}; matches earlier node {cand} at {cand_score:.3f} > "
-                                    f"T_loop_closure {t.T_loop_closure:.3f}: linked {prev} -> {cand} "
-                                    f"(weight {m}) and continued from {cand}")
-        else:
-            node = self._map.add_node(d, frame_index, stamp_s, true_pose)
-            self._node_seq.append(self._seq)
-            self._map.add_arc(prev, node, weight=m, kind="sequential", n_frames=since, length_m=travelled)
-            self._reach(node, d)
-            loop_note = ("no earlier node was eligible for loop closure" if cand is None else
-                         f"best earlier node {cand} scored {cand_score:.3f} <= T_loop_closure "
-                         f"{t.T_loop_closure:.3f}")
-            event = MapEvent(kind="node", node_id=node, **common,
-                             reason=f"{why}; {loop_note}: added node {node} (arc weight {m})")
-        self._events.append(event)
-        return event
+        return common, why
 
-    def _best_loop_candidate(self, d: np.ndarray) -> tuple[Optional[int], Optional[float]]:
-        """The most similar node allowed by the exclusion rule, and its score."""
+    @staticmethod
+    def _check_note(check: SequenceCheck, t: Thresholds) -> str:
+        rival = "no other node" if check.rival is None else f"{check.rival:.3f} elsewhere"
+        return (f"over {check.frames} frames the route stretch {list(check.path)} matched "
+                f"{check.support:.3f} (T_loop_verify {t.T_loop_verify:.3f}) vs {rival}, best in "
+                f"{check.wins:.0%} of them")
+
+    def _close_loop(self, f: _Frame, sim_node: float, cand: int, score: float, check: SequenceCheck) -> None:
+        t = self.thresholds
+        common, why = self._common(f, sim_node, cand, score, check)
+        prev, m = self._node, self._m_distance
+        had = self._map.arc(prev, cand) if self._map.has_arc(prev, cand) else None
+        now = self._map.add_arc(prev, cand, weight=m, kind="loop_closure", n_frames=common["frames_since_prev"],
+                                length_m=common["travelled_m"])
+        self._reach(cand, self._map.descriptor(cand))
+        self._events.append(MapEvent(
+            kind="loop_closure", node_id=cand, new_arc=now != had, **common,
+            reason=f"{why}; matches earlier node {cand} at {score:.3f} > T_loop_closure {t.T_loop_closure:.3f}, "
+                   f"confirmed: {self._check_note(check, t)}; linked {prev} -> {cand} (weight {m}) and "
+                   f"continued from {cand}"))
+
+    def _add_node(self, f: _Frame, sim_node: float, cand: Optional[int], score: Optional[float],
+                  check: Optional[SequenceCheck]) -> None:
+        t = self.thresholds
+        common, why = self._common(f, sim_node, cand, score, check)
+        prev, m = self._node, self._m_distance
+        node = self._map.add_node(f.d, f.frame_index, f.stamp_s, f.true_pose)
+        self._node_seq.append(self._seq)
+        self._map.add_arc(prev, node, weight=m, kind="sequential", n_frames=common["frames_since_prev"],
+                          length_m=common["travelled_m"])
+        self._reach(node, f.d)
+        if cand is None:
+            note = "no earlier node was eligible for loop closure"
+        elif check is None:
+            note = f"best earlier node {cand} scored {score:.3f} <= T_loop_closure {t.T_loop_closure:.3f}"
+        else:
+            note = (f"earlier node {cand} scored {score:.3f} > T_loop_closure {t.T_loop_closure:.3f} but "
+                    f"was rejected: {self._check_note(check, t)}")
+        self._events.append(MapEvent(kind="node", node_id=node, loop_rejected=check is not None, **common,
+                                     reason=f"{why}; {note}: added node {node} (arc weight {m})"))
+
+    def _best_loop_candidate(self, d: np.ndarray) -> tuple[Optional[int], Optional[float], np.ndarray]:
+        """The most similar node allowed by the exclusion rule, its score, and the rows of all
+        eligible nodes."""
         t = self.thresholds
         node_seq = np.asarray(self._node_seq)
         ids = self._map.node_ids
         eligible = node_seq <= self._seq - t.loop_min_gap_frames
         eligible &= ~np.isin(ids, np.asarray(self._recent))
-        if not eligible.any():
-            return None, None
+        rows = np.nonzero(eligible)[0]
+        if rows.size == 0:
+            return None, None, rows
         scores = np.where(eligible, self._map.descriptors @ d, -np.inf)   # no copy of the matrix
         k = int(np.argmax(scores))
-        return int(ids[k]), float(scores[k])
+        return int(ids[k]), float(scores[k]), rows
 
     def _reach(self, node: int, desc: np.ndarray) -> None:
         """Stand at ``node`` from this frame on; restart the distance counter."""
@@ -384,12 +596,12 @@ class MapBuilder:
             raise MapBuildError(f"{where}: descriptor norm is {norm:.4f}; descriptors must be L2-normalised")
         if isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer)):
             raise MapBuildError(f"{where}: frame_index must be an integer")
-        if self._prev_frame_index is not None and frame_index <= self._prev_frame_index:
-            raise MapBuildError(f"{where}: frame_index must increase (previous was {self._prev_frame_index})")
+        if self._last_checked_index is not None and frame_index <= self._last_checked_index:
+            raise MapBuildError(f"{where}: frame_index must increase (previous was {self._last_checked_index})")
         stamp_s = float(stamp_s)
-        if not math.isfinite(stamp_s) or stamp_s < self._prev_stamp_s:
+        if not math.isfinite(stamp_s) or stamp_s < self._last_checked_stamp_s:
             raise MapBuildError(f"{where}: stamp_s {stamp_s!r} must be finite and not earlier than "
-                                f"the previous frame's {self._prev_stamp_s!r}")
+                                f"the previous frame's {self._last_checked_stamp_s!r}")
         has_pose = true_pose is not None
         if has_pose and not isinstance(true_pose, Pose2D):
             raise MapBuildError(f"{where}: true_pose must be a Pose2D, got {type(true_pose).__name__}")
@@ -397,6 +609,8 @@ class MapBuilder:
             self._with_poses = has_pose
         elif has_pose != self._with_poses:
             raise MapBuildError(f"{where}: true_pose must be given for every frame or for none")
+        self._last_checked_index = int(frame_index)
+        self._last_checked_stamp_s = stamp_s
         return d
 
 
@@ -422,6 +636,7 @@ class MapBuild:
         out.update({
             "nodes": len(self.topomap), "nodes_before_merge": len(self.raw_map), "arcs": self.topomap.n_arcs,
             "merged_nodes": {str(k): v for k, v in self.merge.merged.items()} if self.merge is not None else {},
+            "merges_rejected": [list(r) for r in self.merge.rejected] if self.merge is not None else [],
             "mean_arc_length_m": float(np.mean(lengths)) if lengths else None,
             "calibrated": self.calibration is not None, "warnings": list(self.warnings),
         })
@@ -433,7 +648,8 @@ def build_map(descriptors: np.ndarray, config: MappingConfig, *,
               true_poses: Optional[Sequence[Pose2D]] = None, optimise: bool = True,
               progress: bool = False) -> MapBuild:
     """Batch mapping of a recorded walkthrough: thresholds (calibrated or explicit), the
-    builder over every frame, then the merge pass with ``T_merge``."""
+    builder over every frame, then the merge pass with ``T_merge`` (verified on the
+    walkthrough's frames)."""
     from maps.calibration import calibrate
     from maps.optimise import merge_near_duplicates
 
@@ -447,7 +663,10 @@ def build_map(descriptors: np.ndarray, config: MappingConfig, *,
     builder = MapBuilder(thresholds, dim=x.shape[1] if x.ndim == 2 else None)
     builder.add_frames(x, frame_indices, stamps_s, true_poses, progress=progress)
     raw, log = builder.finish()
-    merge = merge_near_duplicates(raw, thresholds) if optimise else None
+    merge = None
+    if optimise:
+        keyframe_seq = {e.node_id: e.seq for e in log.node_events()}
+        merge = merge_near_duplicates(raw, thresholds, frames=x, keyframe_seq=keyframe_seq)
     final = merge.topomap if merge is not None else raw
     warnings = tuple(calibration.warnings) if calibration is not None else ()
     return MapBuild(topomap=final, raw_map=raw, log=log, thresholds=thresholds,

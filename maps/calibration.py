@@ -23,17 +23,26 @@ and sets:
   counts as motion when it changed clearly more than the quietest 5 % of frames (the noise of a
   still camera, or the slowest motion when the robot never stops), and always when it changed
   three quarters of a median step; never when it changed less than a quarter of one;
-* ``T_loop_closure = max(q + LOOP_MARGIN * (1 - q), revisit)``, ``q`` the ``LOOP_QUANTILE``
-  quantile of the non-neighbour similarities: above almost every pair of different places, with
-  a margin. ``revisit = s(spacing / 2)``: an old node must match at least as well as the
-  walkthrough's own frames half a node spacing apart, because the loop check happens when the
-  frame is a node spacing away from the last node, and a true revisit is then at most half a
-  spacing from some old node. Without that floor, large worlds (low ``q``) accept frames that only
-  see an old node's place from a distance, e.g. around a corner (``REVISIT_FRACTION`` scales the
-  floor between ``T_add_new_node`` (0) and ``revisit`` (1));
-* ``T_merge = max(q + MERGE_MARGIN * (1 - q), T_add_new_node)``: the lower, after-the-fact loop
-  threshold for revisits the builder missed; never below ``T_add_new_node``: two nodes less alike
-  than a node spacing are not duplicates;
+* the **spurious level** ``q``: the ``SPURIOUS_QUANTILE`` (0.999) quantile of the non-neighbour
+  similarities: how alike two different places of this walkthrough can look. It is a high
+  quantile, not the maximum, because the non-neighbour pairs include the walkthrough's real
+  revisits (the loop itself), which are the most alike of all; the 0.99 quantile is too low
+  (look-alike corridors and bare-wall corners score above it);
+* ``T_loop_closure = max(q, revisit)``, ``revisit = s(spacing / 2)``: a candidate must look more
+  alike than different places do, and at least as alike as the walkthrough's own frames half a
+  node spacing apart, because the loop check happens when the frame is a node spacing away from
+  the last node, and a true revisit is then at most half a spacing from some old node
+  (``REVISIT_FRACTION`` scales this floor between ``T_add_new_node`` (0) and ``revisit`` (1));
+* ``T_loop_verify = revisit`` (at least ``T_add_new_node``, at most ``T_loop_closure``): on a real
+  revisit no frame is farther than half a spacing from a node of the old route, so the frames
+  after the candidate keep matching the tracked stretch of route at least this well on average;
+* ``loop_verify_frames = decay gap``: the frames it takes the view to become unrelated to where
+  it was. Two look-alike places (corners with bare walls, say) stay alike while the robot turns
+  in front of them; by the time the view has changed completely the routes have parted;
+* ``T_merge = max(q, T_add_new_node)`` (at most ``T_loop_closure``): the lower, after-the-fact loop
+  threshold for revisits the builder missed, but never below the spurious level (two places
+  that different places can match as well are not duplicates) nor below ``T_add_new_node`` (two
+  nodes less alike than a node spacing are not duplicates); every merge is also sequence-verified;
 * ``loop_min_gap_frames = decay gap``.
 
 Higher ``sparsity`` lowers ``T_add_new_node`` and raises ``T_interval``, so the map gets sparser
@@ -49,11 +58,8 @@ import numpy as np
 from maps.config import MappingConfig, Thresholds
 from maps.graph import MapError
 
-#: the high quantile of non-neighbour similarity that loop closures must beat
-LOOP_QUANTILE = 0.99
-#: fraction of the headroom above that quantile added as a margin, for T_loop_closure / T_merge
-LOOP_MARGIN = 0.3
-MERGE_MARGIN = 0.15
+#: the quantile of the frames' best look-alike similarity taken as the spurious level
+LOOK_ALIKE_QUANTILE = 0.5
 #: T_loop_closure is at least this fraction of the way from T_add_new_node to the revisit level
 REVISIT_FRACTION = 1.0
 #: the node interval as a fraction of the expected frames between nodes
@@ -143,9 +149,9 @@ def calibrate(descriptors: np.ndarray, config: MappingConfig, *, max_lag: int = 
               max_sample_frames: int = 1500) -> Calibration:
     """Derive :class:`Thresholds` from a walkthrough's (N, D) descriptors (see module docstring).
 
-    ``config`` gives ``sparsity`` and ``loop_exclude_recent_nodes``. Deterministic (no random
-    sampling). Raises :class:`CalibrationError` when the walkthrough is too short or shows no
-    motion.
+    ``config`` gives ``sparsity``, ``loop_exclude_recent_nodes`` and ``loop_verify_hops``.
+    Deterministic (no random sampling). Raises :class:`CalibrationError` when the walkthrough is
+    too short or shows no motion.
     """
     x = _as_descriptors(descriptors)
     n = x.shape[0]
@@ -181,7 +187,11 @@ def calibrate(descriptors: np.ndarray, config: MappingConfig, *, max_lag: int = 
     non_neighbour = sims[near_mask]
     f = 0.1 + 0.8 * config.sparsity
     t_add = s_top - f * contrast
-    q = float(np.quantile(non_neighbour, LOOP_QUANTILE))
+    # each frame's best look-alike: its most similar frame at least the gap away
+    far_enough = dseq >= gap
+    has_far = far_enough.any(axis=1)
+    look_alike = np.where(far_enough, sims, -np.inf).max(axis=1)[has_far]
+    q = float(np.quantile(look_alike, LOOK_ALIKE_QUANTILE)) if look_alike.size else float(np.max(non_neighbour))
 
     spacing = _first_lag_below(curve, t_add)
     if spacing is None:
@@ -199,18 +209,20 @@ def calibrate(descriptors: np.ndarray, config: MappingConfig, *, max_lag: int = 
     t_add_distance = 1.0 - d_thr
 
     revisit_level = float(curve[max(0, spacing // 2 - 1)])
-    t_loop = max(q + LOOP_MARGIN * (1.0 - q), t_add + REVISIT_FRACTION * max(0.0, revisit_level - t_add))
-    t_merge = max(q + MERGE_MARGIN * (1.0 - q), t_add)
-    if q + LOOP_MARGIN * (1.0 - q) > revisit_level:
-        warnings.append(f"T_loop_closure {t_loop:.3f} (from the non-neighbour quantile) is above the similarity "
-                        f"of frames half a node apart ({revisit_level:.3f}): loop closures will need near-exact "
-                        f"revisits; the optimisation pass (T_merge {t_merge:.3f}) may still merge duplicates")
+    t_loop = max(q, t_add + REVISIT_FRACTION * max(0.0, revisit_level - t_add))
+    t_verify = min(max(revisit_level, t_add, q), t_loop)
+    t_merge = t_verify
+    if q > revisit_level:
+        warnings.append(f"T_loop_closure {t_loop:.3f} (the spurious level) is above the similarity of frames half "
+                        f"a node apart ({revisit_level:.3f}): loop closures will need near-exact revisits")
 
     thresholds = Thresholds(
         T_add_new_node=float(np.clip(t_add, -1.0, 1.0)), T_interval=t_interval,
         T_add_distance=float(np.clip(t_add_distance, -1.0, 1.0)),
         T_loop_closure=float(np.clip(t_loop, -1.0, 1.0)), T_merge=float(np.clip(t_merge, -1.0, 1.0)),
-        loop_min_gap_frames=int(gap), loop_exclude_recent_nodes=config.loop_exclude_recent_nodes)
+        loop_min_gap_frames=int(gap), loop_exclude_recent_nodes=config.loop_exclude_recent_nodes,
+        T_loop_verify=float(np.clip(t_verify, -1.0, 1.0)), loop_verify_frames=int(gap),
+        loop_verify_hops=config.loop_verify_hops)
     curve_points = np.unique(np.geomspace(1, lag_cap, num=min(lag_cap, 40)).round().astype(int))
     stats = {
         "n_frames": n, "sparsity": config.sparsity, "node_decay_fraction": f,
@@ -220,12 +232,15 @@ def calibrate(descriptors: np.ndarray, config: MappingConfig, *, max_lag: int = 
         "non_neighbour": {"pairs": int(non_neighbour.size), "sample_frames": int(sample.seq.size),
                           "q50": float(np.median(non_neighbour)),
                           "q90": float(np.quantile(non_neighbour, 0.9)),
-                          f"q{LOOP_QUANTILE * 100:g}": q,
+                          "q99": float(np.quantile(non_neighbour, 0.99)),
+                          "q99.9": float(np.quantile(non_neighbour, 0.999)),
+                          "look_alike_q50": float(np.median(look_alike)) if look_alike.size else None,
+                          "look_alike_q90": float(np.quantile(look_alike, 0.9)) if look_alike.size else None,
+                          "spurious_level": q,
                           "max": float(non_neighbour.max())},
         "frame_step_dissimilarity": {"q05": d05, "q50": d50, "q75": d75, "moving_threshold": d_thr},
         "revisit_level": revisit_level,
-        "constants": {"LOOP_QUANTILE": LOOP_QUANTILE, "LOOP_MARGIN": LOOP_MARGIN,
-                      "MERGE_MARGIN": MERGE_MARGIN, "REVISIT_FRACTION": REVISIT_FRACTION,
+        "constants": {"LOOK_ALIKE_QUANTILE": LOOK_ALIKE_QUANTILE, "REVISIT_FRACTION": REVISIT_FRACTION,
                       "INTERVAL_FRACTION": INTERVAL_FRACTION,
                       "GAP_FRACTION": GAP_FRACTION},
     }

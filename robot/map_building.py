@@ -101,7 +101,8 @@ def draw_saved_map(map_dir: str | Path) -> list[Path]:
 
 
 def _draw_pictures(topomap, map_dir: Path, thumbnail, world_picture, sample, log, merged) -> list[Path]:
-    paths = [draw_map_picture(topomap, map_dir / MAP_PICTURE, thumbnail=thumbnail,
+    rejected = [(e.node_id, e.loop_candidate) for e in log.rejected_loop_events()] if log is not None else []
+    paths = [draw_map_picture(topomap, map_dir / MAP_PICTURE, thumbnail=thumbnail, rejected_loops=rejected,
                               background=world_picture.rgb if world_picture else None,
                               world_to_pixel=world_picture.to_pixel if world_picture else None,
                               title=f"{len(topomap)} nodes, {len(topomap.loop_closures())} loop closures")]

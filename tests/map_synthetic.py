@@ -98,3 +98,29 @@ def landmark_route(seed: int = 0, dim: int = 256, side_m: float = 8.0, step_m: f
     stamps = np.arange(len(poses)) * dt_s
     return Route(descriptors=desc.astype(np.float32), poses=poses, stamps_s=stamps,
                  moving=np.asarray(moving))
+
+
+def place_route(places: list[int], frames_per_leg: int = 8, dim: int = 64, seed: int = 0,
+                twins: dict[int, tuple[int, float]] | None = None) -> np.ndarray:
+    """A drive through numbered places: each place has a random unit vector, and the frames of
+    each leg blend the vectors of its two ends, so similarity decays smoothly as the robot
+    drives on. Repeating a place number is a true revisit (the same frames again);
+    ``twins[p] = (q, a)`` makes place ``p`` a look-alike of place ``q`` (cosine ``a``) with
+    different places around it. Returns (frames, dim) float32, L2-normalised."""
+    rng = np.random.default_rng(seed)
+    vec = {}
+    for p in sorted(set(places)):
+        v = rng.standard_normal(dim)
+        vec[p] = v / np.linalg.norm(v)
+    for p, (q, a) in (twins or {}).items():
+        fresh = vec[p] - (vec[p] @ vec[q]) * vec[q]
+        fresh /= np.linalg.norm(fresh)
+        vec[p] = a * vec[q] + math.sqrt(1.0 - a * a) * fresh
+    frames = []
+    for p, q in zip(places, places[1:]):
+        for k in range(frames_per_leg):
+            t = k / frames_per_leg
+            frames.append((1.0 - t) * vec[p] + t * vec[q])
+    frames.append(vec[places[-1]])
+    out = np.asarray(frames)
+    return (out / np.linalg.norm(out, axis=1, keepdims=True)).astype(np.float32)

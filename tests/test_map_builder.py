@@ -17,7 +17,7 @@ from maps.config import MappingConfig, Thresholds
 from maps.graph import MapError, TopoMap
 from maps.optimise import merge_near_duplicates
 from robot.hal import Pose2D
-from tests.map_synthetic import arc_sequence
+from tests.map_synthetic import arc_sequence, place_route
 
 
 def thresholds(**kw) -> Thresholds:
@@ -287,3 +287,105 @@ def test_topomap_refuses_bad_arcs():
         topo.add_arc(0, 2, 1.0, "teleport")
     assert topo.add_arc(0, 1, 3.0, "loop_closure").weight == 3.0      # cheaper replaces
     assert topo.add_arc(0, 1, 8.0, "sequential").kind == "loop_closure"   # dearer is ignored
+
+
+# -- sequence verification ----------------------------------------------------------------
+# places 0..16, where 12 and 13 look like 3 and 4 (a look-alike stretch: a single frame there
+# matches an old node above T_loop_closure), then back to 0..5 (a true revisit)
+TWIN_ROUTE = list(range(17)) + [0, 1, 2, 3, 4, 5]
+TWINS = {12: (3, 0.97), 13: (4, 0.97)}
+LEG = 8        # frames per leg of place_route
+
+
+def _twin_thresholds(k: int) -> Thresholds:
+    return thresholds(T_add_new_node=0.8, T_loop_closure=0.9, T_merge=0.9, T_add_distance=0.999,
+                      loop_min_gap_frames=20, T_loop_verify=0.8, loop_verify_frames=k, loop_verify_hops=2)
+
+
+def _leg(seq: int) -> int:
+    """The position in TWIN_ROUTE of the leg a frame lies on."""
+    return seq // LEG
+
+
+def test_without_verification_a_look_alike_closes_a_wrong_loop():
+    x = place_route(TWIN_ROUTE, frames_per_leg=LEG, twins=TWINS)
+    _, log = run(x, _twin_thresholds(0))
+    wrong = [e for e in log.loop_closure_events() if _leg(e.seq) in (11, 12, 13)]
+    assert wrong, "the paper's unverified rule takes the look-alike for a revisit"
+    assert not log.rejected_loop_events()
+
+
+def test_sequence_verification_rejects_the_look_alike_and_keeps_the_true_revisit():
+    x = place_route(TWIN_ROUTE, frames_per_leg=LEG, twins=TWINS)
+    t = _twin_thresholds(16)
+    topo, log = run(x, t)
+    assert not [e for e in log.loop_closure_events() if _leg(e.seq) < 16], "no loop before the revisit"
+    rejected = log.rejected_loop_events()
+    assert rejected and all(_leg(e.seq) in (11, 12, 13) for e in rejected)
+    for e in rejected:                      # logged with the scores the picture shows
+        assert e.kind == "node" and e.loop_score > t.T_loop_closure
+        assert e.verify_frames == 17 and e.verify_support < t.T_loop_verify
+        assert "rejected" in e.reason
+    first = log.loop_closure_events()[0]
+    assert _leg(first.seq) >= 16 and first.node_id == 0, "the revisit of place 0 closes onto node 0"
+    assert first.verify_support >= t.T_loop_verify and first.verify_rival < first.verify_support
+    # after it the builder hops along the old nodes, each hop verified, adding no nodes
+    assert all(e.seq < first.seq for e in log.node_events())
+    assert topo.arc(first.prev_node, 0).kind == "loop_closure"
+    assert log.summary()["loop_closures_rejected"][0]["candidate"] == rejected[0].loop_candidate
+
+
+def test_verified_decisions_wait_for_their_frames_and_finish_decides_the_last_one():
+    x = place_route(TWIN_ROUTE, frames_per_leg=LEG, twins=TWINS)
+    t = _twin_thresholds(16)
+    _, batch = run(x, t)
+    b = MapBuilder(t)
+    came_out_at = {}
+    for i, d in enumerate(x):
+        for e in b.add_frame(d, i, float(i)):
+            came_out_at[e.seq] = i
+    topo, log = b.finish()
+    assert log.events == batch.events
+    assert log.n_frames == len(x) and log.node.shape == (len(x),)
+    for e in log.rejected_loop_events():
+        assert came_out_at[e.seq] == e.seq + 16, "a candidate is decided once its 16 frames are in"
+    # a walkthrough that ends just after the revisit begins: finish() decides on what there is
+    start = next(e.seq for e in batch.loop_closure_events())
+    short = MapBuilder(t)
+    short.add_frames(x[: start + 4])
+    _, end = short.finish()
+    last = end.loop_closure_events()
+    assert last and last[0].seq == start and last[0].verify_frames == 4
+    assert end.n_frames == start + 4
+
+
+def test_thresholds_without_verification_fields_load_as_unverified():
+    old = {k: v for k, v in thresholds().to_dict().items()
+           if k not in ("T_loop_verify", "loop_verify_frames", "loop_verify_hops")}
+    t = Thresholds.from_dict(old)
+    assert t.loop_verify_frames == 0
+    with pytest.raises(ValueError, match="loop_verify_frames"):
+        thresholds(loop_verify_frames=-1)
+    with pytest.raises(ValueError, match="T_loop_verify"):
+        thresholds(T_loop_verify=2.0)
+
+
+def test_merge_needs_the_route_around_both_nodes_to_agree():
+    rng = np.random.default_rng(4)
+    d = rng.standard_normal((10, 64))
+    d[6] = d[2] + 0.1 * rng.standard_normal(64)     # 6 looks like 2, but 7, 8 do not look like 3, 4
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    topo = _chain_map(d.astype(np.float32))
+    plain = thresholds(T_merge=0.9, loop_min_gap_frames=0, loop_exclude_recent_nodes=1)
+    assert merge_near_duplicates(topo, plain).merged == {6: 2}, "the paper's rule merges the look-alike"
+    verified = thresholds(T_merge=0.9, loop_min_gap_frames=0, loop_exclude_recent_nodes=1,
+                          T_loop_verify=0.6, loop_verify_frames=3, loop_verify_hops=1)
+    result = merge_near_duplicates(topo, verified)
+    assert result.merged == {} and result.rejected[0][:2] == (6, 2)
+    # a real revisit: 6, 7 and 5 look like 2, 3 and 1 -> merged
+    d2 = d.copy()
+    d2[7] = d[3] + 0.1 * rng.standard_normal(64)
+    d2[5] = d[1] + 0.1 * rng.standard_normal(64)
+    d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
+    result = merge_near_duplicates(_chain_map(d2.astype(np.float32)), verified)
+    assert result.merged.get(6) == 2 and not result.rejected

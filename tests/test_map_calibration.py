@@ -24,9 +24,12 @@ def test_calibrated_thresholds_sit_between_the_walkthrough_statistics(route):
     cal = calibrate(route.descriptors, MappingConfig(sparsity=0.5))
     t, st = cal.thresholds, cal.stats
     assert st["s_floor"] < t.T_add_new_node < st["s_top"]
-    q = st["non_neighbour"]["q99"]
-    assert q < t.T_merge <= t.T_loop_closure < 1.0
-    assert t.T_loop_closure >= t.T_add_new_node
+    q = st["non_neighbour"]["spurious_level"]
+    # one evidence level: a merge needs what a verified loop closure needs, never less than the
+    # similarity that different places reach
+    assert q <= t.T_merge == t.T_loop_verify <= t.T_loop_closure < 1.0
+    assert t.T_loop_verify >= st["revisit_level"] and t.T_loop_closure >= t.T_add_new_node
+    assert t.loop_verify_frames == t.loop_min_gap_frames == st["decay_gap_frames"]
     assert 1 <= t.T_interval < st["expected_frames_per_node"]
     assert 1 <= t.loop_min_gap_frames <= st["max_lag"]
     # the motion threshold separates standing still from driving on this route
@@ -64,6 +67,19 @@ def test_calibrated_map_closes_the_loop_at_the_right_place_and_spreads_nodes(sid
     closed_at = [raw.node(loops[0].node_id)] if loops else [raw.node(k) for k in merged.values()]
     # ... where the route began: the loop closes at the start or at the node after it
     assert min(n.true_pose.distance_to(route.poses[0]) for n in closed_at) < max(1.5, spacing.mean())
+
+
+def test_spurious_level_is_not_raised_by_the_walkthrough_s_own_revisits():
+    # a long overlap: 6 m of the square driven twice, so revisit pairs are more than 0.1 % of
+    # the non-neighbour pairs and any high quantile of them is a revisit, not a look-alike
+    route = landmark_route(seed=0, overlap_m=6.0)
+    st = calibrate(route.descriptors, MappingConfig(sparsity=0.5)).stats["non_neighbour"]
+    assert st["q99.9"] > 0.95, "the revisits are near-identical frames"
+    assert st["spurious_level"] < st["q99.9"] - 0.2
+    made = build_map(route.descriptors, MappingConfig(sparsity=0.5), true_poses=route.poses)
+    loops = made.log.loop_closure_events()
+    assert loops and all(route.poses[e.seq].distance_to(made.raw_map.node(e.node_id).true_pose) < 1.5
+                         for e in loops)
 
 
 def test_sparsity_knob_changes_node_count_monotonically(route):
@@ -126,6 +142,10 @@ def test_mapping_config_loads_from_yaml_with_errors_naming_file_and_field(tmp_pa
     bad.write_text("sparsity: 1.5\n")
     with pytest.raises(ConfigError, match=r"bad\.yaml.*sparsity"):
         load_config(MappingConfig, bad)
+    verify = tmp_path / "verify.yaml"
+    verify.write_text("loop_verify_frames: -3\n")
+    with pytest.raises(ConfigError, match=r"verify\.yaml.*loop_verify_frames"):
+        load_config(MappingConfig, verify)
     typo = tmp_path / "typo.yaml"
     typo.write_text("T_add_node: 0.5\n")
     with pytest.raises(ConfigError, match=r"typo\.yaml: T_add_node: unknown field"):

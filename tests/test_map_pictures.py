@@ -8,15 +8,16 @@ import pytest
 
 from maps.builder import MapBuilder, build_map
 from maps.calibration import similarity_sample
-from maps.config import MappingConfig
+from maps.config import MappingConfig, Thresholds
 from maps.graph import MapError
-from maps.pictures import draw_map_picture, draw_similarity_picture
+from maps.pictures import BACKGROUND_FADE, draw_map_picture, draw_similarity_picture
 from maps.store import load_map, save_map
 from robot.descriptors.base import DescriptorIdentity
-from tests.map_synthetic import landmark_route
+from tests.map_synthetic import landmark_route, place_route
 
 LOOP_RGB = (214, 39, 40)        # the loop-closure red
 MARKER_RGB = (0, 229, 255)      # the loop-closure marker cyan in the similarity picture
+PURPLE_RGB = (148, 103, 189)    # rejected look-alikes
 
 
 def grey_thumb(k: int) -> np.ndarray:
@@ -31,8 +32,12 @@ def read_png(path) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+def pixels_mask(img: np.ndarray, rgb, tol: int = 30) -> np.ndarray:
+    return np.all(np.abs(img.astype(int) - np.asarray(rgb, dtype=float)) < tol, axis=2)
+
+
 def pixels_near(img: np.ndarray, rgb, tol: int = 30) -> int:
-    return int(np.all(np.abs(img.astype(int) - np.array(rgb)) < tol, axis=2).sum())
+    return int(pixels_mask(img, rgb, tol).sum())
 
 
 @pytest.fixture(scope="module")
@@ -90,3 +95,45 @@ def test_similarity_picture_marks_keyframes_and_loop_closures(tmp_path, made):
     assert build.log.loop_closure_events()
     assert pixels_near(img, MARKER_RGB, tol=25) > 50
     assert pixels_near(img, (44, 160, 44), tol=25) > 50            # green keyframe dots / node lines
+
+
+def _box_of(mask: np.ndarray) -> tuple[int, int, int, int]:
+    rows, cols = np.nonzero(mask)
+    return rows.min(), rows.max(), cols.min(), cols.max()
+
+
+def test_map_picture_draws_the_world_large_and_keeps_thumbnails_off_it(tmp_path, made):
+    build, _ = made
+    world_rgb = np.array([40, 170, 60])
+    background = np.full((500, 700, 3), 255, np.uint8)          # white margin, as a legend panel
+    background[50:450, 50:450] = world_rgb                        # the 8 m square's floor
+    to_px = lambda x, y: (50 + 50 * x, 450 - 50 * y)             # noqa: E731
+    blue = lambda k: np.tile(np.array([0, 0, 255], np.uint8), (120, 160, 1))   # noqa: E731
+    img = read_png(draw_map_picture(build.topomap, tmp_path / "map.png", thumbnail=blue,
+                                    background=background, world_to_pixel=to_px, max_thumbnails=8))
+    faded = BACKGROUND_FADE * 255 + (1 - BACKGROUND_FADE) * world_rgb
+    floor = pixels_mask(img, faded, tol=12)
+    r0, r1, c0, c1 = _box_of(floor)
+    assert (r1 - r0) * (c1 - c0) > 0.4 * img.shape[0] * img.shape[1], "the world must fill the picture"
+    thumbs = pixels_mask(img, (0, 0, 255), tol=12)
+    assert thumbs.sum() > 8 * 1500, "eight thumbnails are drawn"
+    tr, _, _, _ = _box_of(thumbs)
+    assert tr > r1, "thumbnails sit in a strip below the world, not on it"
+
+
+def test_rejected_look_alikes_are_drawn_in_purple(tmp_path):
+    x = place_route(list(range(17)) + [0, 1, 2, 3, 4, 5], frames_per_leg=8, twins={12: (3, 0.97), 13: (4, 0.97)})
+    t = Thresholds(T_add_new_node=0.8, T_interval=1, T_add_distance=0.999, T_loop_closure=0.9, T_merge=0.9,
+                   loop_min_gap_frames=20, loop_exclude_recent_nodes=2, T_loop_verify=0.8,
+                   loop_verify_frames=16, loop_verify_hops=2)
+    b = MapBuilder(t)
+    b.add_frames(x)
+    topo, log = b.finish()
+    rejected = log.rejected_loop_events()
+    assert rejected
+    sim = read_png(draw_similarity_picture(similarity_sample(x), log, tmp_path / "sim.png"))
+    assert pixels_near(sim, PURPLE_RGB, tol=20) > 100
+    plain = read_png(draw_map_picture(topo, tmp_path / "plain.png"))
+    marked = read_png(draw_map_picture(topo, tmp_path / "marked.png",
+                                       rejected_loops=[(e.node_id, e.loop_candidate) for e in rejected]))
+    assert pixels_near(marked, PURPLE_RGB, tol=20) > pixels_near(plain, PURPLE_RGB, tol=20) + 50
