@@ -136,6 +136,7 @@ class Navigator:
         self._search: Optional[TurnMeter] = None
         self._search_ticks = 0
         self._final: Optional[NavigationStep] = None
+        self._planning_error: Optional[PlanningError] = None
 
     @classmethod
     def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
@@ -163,6 +164,13 @@ class Navigator:
     @property
     def visited_nodes(self) -> Tuple[NodeId, ...]:
         return tuple(self._visited)
+
+    @property
+    def planning_error(self) -> Optional[PlanningError]:
+        """The planner's exception when the navigator FAILED because no plan exists (e.g.
+        :class:`controllers.planner.UnreachableGoalError` naming both nodes), so a run loop can
+        re-raise it as a specific error; None otherwise."""
+        return self._planning_error
 
     def tick(self, similarities: np.ndarray, thirds: ThirdsInput = None,
              heading_rad: Optional[float] = None) -> NavigationStep:
@@ -202,6 +210,7 @@ class Navigator:
         try:
             plan = self.planner.plan(start, self.goal_node)
         except PlanningError as exc:
+            self._planning_error = exc
             return self._fail(f"{result.reason}; {exc}")
         self._plans += 1
         self._plan = plan.nodes

@@ -1,9 +1,12 @@
-"""The product's entry point: ``python -m robot.run --mode map|show``.
+"""The product's entry point: ``python -m robot.run --mode map|navigate|show``.
 
     python -m robot.run --mode map [--world hospital] [--out DIR]   # teleop drive, then the map
     python -m robot.run --mode map --video FILE [--every-s 0.5]     # a map from a video, no robot
     python -m robot.run --mode map --images DIR [--every 2]         # a map from an image folder
     python -m robot.run --mode show --map DIR                       # the map's pictures
+    python -m robot.run --mode navigate --map DIR --route easy      # drive a route of the world
+    python -m robot.run --mode navigate --map DIR --goal 12 --start node:40 --result r.json
+    python -m robot.run --mode navigate --map DIR --goal goal.jpg --hal serial --port /dev/ttyTHS1 --camera 0
 
 Configuration is read once here (``configs/default.yaml`` or ``--config FILE``) and passed down.
 Every error a user can cause ends in one clear line on stderr and a non-zero exit code; the
@@ -26,10 +29,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m robot.run",
         description="Teach a route by driving it once, then navigate it with one camera.")
-    parser.add_argument("--mode", required=True, choices=["map", "show"],
+    parser.add_argument("--mode", required=True, choices=["map", "navigate", "show"],
                         help="map: drive the world's walkthrough with the scripted teleoperator, record it and "
                              "build the topological map (or map a --video / --images without a robot); "
-                             "show: draw a map's pictures")
+                             "navigate: drive to a goal node or goal image of a map; show: draw a map's pictures")
     parser.add_argument("--world", default="hospital",
                         help="a world name from configs/worlds (hospital, office) or a path to a world YAML file")
     parser.add_argument("--out", type=Path, default=None,
@@ -53,6 +56,31 @@ def build_parser() -> argparse.ArgumentParser:
                         help="map folder (default <out>/map); for --mode show, the map to draw")
     parser.add_argument("--no-map", action="store_true", help="--mode map: record the drive only")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    nav = parser.add_argument_group("navigation (--mode navigate)")
+    nav.add_argument("--goal", default=None,
+                     help="goal: a node id of the map or a path to a goal image (default with --route: the image "
+                          "the camera sees at the route's goal pose)")
+    nav.add_argument("--route", default=None,
+                     help="an evaluation route of the world: start at its start pose; without --goal, its goal")
+    nav.add_argument("--start", default=None,
+                     help="simulator start: a route name, x,y,yaw_deg (metres, degrees) or node:ID (a map node's "
+                          "true pose: a kidnapped start); default the route's start")
+    nav.add_argument("--result", type=Path, default=None,
+                     help="write the episode's metrics as JSON here (success, distance to goal, SPL, timings, nodes)")
+    nav.add_argument("--trace", type=Path, default=None,
+                     help="top-down picture of the drive over the map (simulator; default <out>/navigation.png)")
+    nav.add_argument("--record-video", type=Path, default=None, metavar="MP4",
+                     help="write the camera view with overlays (nodes, scores, action, state) as MP4")
+    nav.add_argument("--max-steps", type=int, default=None, help="step budget (default from the route length)")
+    hal = parser.add_argument_group("robot base")
+    hal.add_argument("--hal", choices=["sim", "serial", "serial-twin"], default="sim",
+                     help="sim: the PyBullet Limo; serial: a Limo base on --port with --camera; serial-twin: "
+                          "the PyBullet Limo behind the base emulator on a pseudo-terminal, every command "
+                          "crossing the serial backend as bytes")
+    hal.add_argument("--port", default=None, help="--hal serial: the base's serial device or a pyserial URL")
+    hal.add_argument("--baud", type=int, default=460800, help="--hal serial: baud rate (Limo: 460800)")
+    hal.add_argument("--camera", default=None,
+                     help="--hal serial: camera device index, stream URL or video file")
     return parser
 
 
@@ -67,10 +95,14 @@ def _print_map_summary(summary: dict, map_dir: Path) -> None:
     spacing = f", mean spacing {metres:.2f} m" if metres else ""
     print(f"map: {summary['frames_read']} frames read -> {summary['nodes']} nodes "
           f"({summary.get('nodes_before_merge', summary['nodes'])} before merging), "
-          f"{summary.get('loop_closures', 0)} loop closures{spacing} -> {map_dir}")
+          f"{_count(summary.get('loop_closures', 0))} loop closures{spacing} -> {map_dir}")
     print(f"  pictures: {map_dir / 'map.png'}  {map_dir / 'similarity.png'}")
     for warning in summary.get("warnings", []):
         print(f"  warning: {warning}")
+
+
+def _count(value) -> int:
+    return len(value) if isinstance(value, (list, tuple)) else int(value)
 
 
 def _mode_map(args, config) -> int:
@@ -125,8 +157,93 @@ def _mode_show(args, config) -> int:
     return 0
 
 
+def _mode_navigate(args, config) -> int:
+    from robot.episode_metrics import format_summary
+
+    if args.map is None:
+        raise UsageError("--mode navigate needs --map DIR (build one with --mode map)")
+    if args.hal == "serial":
+        metrics = _navigate_serial(args, config)
+    else:
+        metrics = _navigate_sim(args, config)
+    if args.result is None:
+        print(format_summary(metrics))
+    else:
+        print(f"{'success' if metrics.success else 'failure'}: {metrics.reason} -> {args.result}")
+    return 0 if (metrics.success or (args.hal == "serial" and metrics.arrived)) else EXIT_FAILED
+
+
+def _navigate_sim(args, config):
+    from robot.sim_episode import parse_start, run_sim_navigation
+
+    if args.goal is None and args.route is None:
+        raise UsageError("--mode navigate needs --goal (node id or image) or --route NAME")
+    make_base = None
+    if args.hal == "serial-twin":
+        from sim.serial_twin import SerialTwinLimo
+
+        def make_base(sim_config, start, world, appearance_seed):
+            return SerialTwinLimo(world, sim_config, start, appearance_seed=appearance_seed)
+    out = args.out if args.out is not None else args.map.parent
+    result = run_sim_navigation(
+        args.world, args.map, _make_descriptor(config), goal=args.goal, route=args.route,
+        start=parse_start(args.start) if args.start is not None else None,
+        appearance_seed=args.appearance_seed, sim_config=config.sim, navigation=config.navigation,
+        episode=config.episode, max_steps=args.max_steps, result_path=args.result,
+        trace_png=args.trace if args.trace is not None else out / "navigation.png",
+        video_path=args.record_video, progress=not args.quiet, make_base=make_base)
+    return result.metrics
+
+
+def _navigate_serial(args, config):
+    """A real Limo (or an emulator on a pty): goal node or image, no ground truth."""
+    from maps.store import load_map
+    from robot.episode_metrics import compute_metrics
+    from robot.limo_serial import LimoSerialBase, LimoSerialConfig
+    from robot.navigation import (attach_descriptor, configure_thresholds, parse_goal, resolve_goal,
+                                  run_episode, step_budget)
+    from robot.map_building import write_json_atomic
+
+    if args.port is None:
+        raise UsageError("--hal serial needs --port DEV (the base's serial device, e.g. /dev/ttyTHS1)")
+    if args.goal is None:
+        raise UsageError("--hal serial needs --goal (a node id or a goal image); routes exist only in simulation")
+    loaded = load_map(args.map)
+    descriptor = attach_descriptor(loaded, _make_descriptor(config))
+    nav = configure_thresholds(loaded, config.navigation, config.episode)
+    goal = resolve_goal(parse_goal(args.goal), loaded.topomap, descriptor, nav.thresholds)
+    serial_config = LimoSerialConfig(port=args.port, baud=args.baud, camera=args.camera,
+                                     control_period_s=config.sim.control_period_s)
+    budget = args.max_steps or step_budget(config.episode, nav, serial_config.control_period_s)
+    with LimoSerialBase(serial_config) as base:
+        outcome = run_episode(base, loaded.topomap, descriptor, goal.node, nav, budget)
+    metrics = compute_metrics(outcome)
+    if args.result is not None:
+        write_json_atomic(args.result, {**metrics.to_dict(), "setup": {"map": str(args.map), "goal": goal.source,
+                                                                        "goal_node": goal.node, "port": args.port}})
+    return metrics
+
+
 class UsageError(ValueError):
     """Arguments that do not fit together."""
+
+
+def _navigation_input_errors() -> tuple[type[BaseException], ...]:
+    """Errors a user causes with navigation arguments: exit 2."""
+    from controllers.planner import UnknownNodeError
+    from robot.navigation import GoalImageError
+    from robot.sim_episode import StartError
+    from sim.world_spec import WorldError
+
+    return (UnknownNodeError, GoalImageError, StartError, WorldError)
+
+
+def _navigation_run_errors() -> tuple[type[BaseException], ...]:
+    """Errors of the run itself (a goal the robot cannot reach or recognise): exit 1."""
+    from controllers.localisation import GoalNotLocalisedError
+    from controllers.planner import UnreachableGoalError
+
+    return (GoalNotLocalisedError, UnreachableGoalError)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -148,11 +265,12 @@ def main(argv: list[str] | None = None) -> int:
             sim = replace(config.sim, seed=config.sim.seed if args.seed is None else args.seed,
                           gui=args.gui or config.sim.gui)
             config = replace(config, sim=sim)
-        return {"map": _mode_map, "show": _mode_show}[args.mode](args, config)
-    except (ConfigError, RecordingError, FrameSourceError, MapError, DescriptorError, UsageError) as exc:
+        return {"map": _mode_map, "navigate": _mode_navigate, "show": _mode_show}[args.mode](args, config)
+    except (ConfigError, RecordingError, FrameSourceError, MapError, DescriptorError, UsageError,
+            *_navigation_input_errors()) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except (DriveError, HalError) as exc:
+    except (DriveError, HalError, *_navigation_run_errors()) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_FAILED
     except KeyboardInterrupt:

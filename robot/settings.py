@@ -11,8 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from controllers.config import NavigationConfig
 from maps.config import MappingConfig
 from robot.configfile import load_config
+from robot.navigation import EpisodeConfig
 from sim.hal import SimConfig
 from sim.teleop import TeleopConfig
 
@@ -54,6 +56,8 @@ class StackConfig:
     recording: RecordingConfig = field(default_factory=RecordingConfig)
     descriptor: DescriptorConfig = field(default_factory=DescriptorConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    navigation: NavigationConfig = field(default_factory=NavigationConfig)
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
 
 
 def load_stack_config(path: str | Path | None = None) -> StackConfig:
