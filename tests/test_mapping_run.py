@@ -6,6 +6,9 @@ import sys
 from pathlib import Path
 
 import cv2
+import pytest
+
+from maps.store import load_map
 
 from robot.recording import read_recording
 
@@ -17,10 +20,17 @@ def _run(*args, cwd=None):
                           cwd=cwd, timeout=300)
 
 
-def test_mapping_run_records_frames_summary_and_picture(tmp_path):
-    out = tmp_path / "tiny"
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """One mapping run of the tiny world through the CLI (drive, record, map), shared by the tests."""
+    out = tmp_path_factory.mktemp("run") / "tiny"
     proc = _run("--mode", "map", "--world", str(TINY), "--out", str(out), "--quiet")
     assert proc.returncode == 0, proc.stderr
+    return out, proc
+
+
+def test_mapping_run_records_frames_summary_and_picture(tiny_run):
+    out, proc = tiny_run
     summary = json.loads((out / "summary.json").read_text())
     assert summary["world"] == "tiny"
     # the loop is 12 m; the teleoperator drives all of it and stops near the start
@@ -33,6 +43,68 @@ def test_mapping_run_records_frames_summary_and_picture(tmp_path):
     picture = cv2.imread(str(out / "world.png"))
     assert picture is not None and picture.shape[0] > 100
     assert "recorded" in proc.stdout
+
+
+def test_mapping_run_builds_a_map_along_the_drive(tiny_run):
+    out, proc = tiny_run
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames_read"] == summary["frames"]
+    loaded = load_map(out / "map")
+    topomap = loaded.topomap
+    # 12 m at 0.3-1 m per node, every node at its true pose near the driven square
+    assert 10 <= len(topomap) <= 45
+    assert summary["nodes"] == len(topomap)
+    for node in topomap.nodes():
+        p = node.true_pose
+        assert 0.5 < p.x_m < 5.5 and 0.5 < p.y_m < 3.5
+    assert loaded.identity.backend == "effnet-vlad"
+    assert cv2.imread(str(out / "map" / "map.png")) is not None
+    assert cv2.imread(str(out / "map" / "similarity.png")) is not None
+    assert "nodes" in proc.stdout and "loop closures" in proc.stdout
+
+
+def test_show_mode_redraws_the_pictures(tiny_run, tmp_path):
+    out, _ = tiny_run
+    (out / "map" / "map.png").unlink()
+    proc = _run("--mode", "show", "--map", str(out / "map"))
+    assert proc.returncode == 0, proc.stderr
+    assert cv2.imread(str(out / "map" / "map.png")) is not None
+
+
+def test_map_from_a_video_without_a_robot(tiny_run, tmp_path):
+    """The recorded drive written as an MP4 (as from a phone), mapped with --video --every."""
+    out, _ = tiny_run
+    frames = read_recording(out)
+    video = tmp_path / "walk.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 5.0, (320, 240))
+    assert writer.isOpened()
+    for f in frames:
+        writer.write(cv2.cvtColor(f.load_rgb(), cv2.COLOR_RGB2BGR))
+    writer.release()
+    proc = _run("--mode", "map", "--video", str(video), "--every", "2", "--out", str(tmp_path / "vmap"), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads((tmp_path / "vmap" / "summary.json").read_text())
+    assert summary["frames_read"] == (len(frames) + 1) // 2
+    loaded = load_map(tmp_path / "vmap" / "map")
+    assert 5 <= len(loaded.topomap) <= summary["frames_read"] // 2
+    assert all(node.true_pose is None for node in loaded.topomap.nodes())   # a video knows no poses
+    assert cv2.imread(str(tmp_path / "vmap" / "map" / "map.png")) is not None
+
+
+def test_map_from_an_image_folder_and_bad_sources(tiny_run, tmp_path):
+    out, _ = tiny_run
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for f in read_recording(out)[:60]:
+        cv2.imwrite(str(folder / f"{f.index:05d}.jpg"), cv2.cvtColor(f.load_rgb(), cv2.COLOR_RGB2BGR))
+    proc = _run("--mode", "map", "--images", str(folder), "--out", str(tmp_path / "imap2"), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((tmp_path / "imap2" / "summary.json").read_text())["frames_read"] == 60
+    missing = _run("--mode", "map", "--video", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "x"), "--quiet")
+    assert missing.returncode == 2 and "nope.mp4" in missing.stderr and "Traceback" not in missing.stderr
+    (tmp_path / "bad.mp4").write_bytes(b"not a video at all")
+    bad = _run("--mode", "map", "--video", str(tmp_path / "bad.mp4"), "--out", str(tmp_path / "y"), "--quiet")
+    assert bad.returncode == 2 and "bad.mp4" in bad.stderr
 
 
 def test_bad_world_file_names_file_and_field(tmp_path):
