@@ -1,0 +1,114 @@
+"""Navigation through the serial backend: the Limo emulator in its own process on a
+pseudo-terminal, the camera replayed from a video file, the real CLI; Ctrl-C must leave the base
+commanded to zero velocity."""
+
+from __future__ import annotations
+
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+TINY_CONFIG = "descriptor:\n  backend: tiny\n"
+
+
+def _places(n: int = 40) -> list[np.ndarray]:
+    """A drive past distinct synthetic places: a long random mural seen through a sliding window."""
+    rng = np.random.default_rng(7)
+    mural = cv2.resize(rng.integers(0, 255, (6, 60, 3), dtype=np.uint8), (2400, 240),
+                       interpolation=cv2.INTER_CUBIC)
+    return [np.ascontiguousarray(mural[:, 20 * i: 20 * i + 320]) for i in range(n)]
+
+
+@pytest.fixture(scope="module")
+def serial_setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("serial")
+    (root / "tiny.yaml").write_text(TINY_CONFIG)
+    images = root / "imgs"
+    images.mkdir()
+    frames = _places()
+    for i, img in enumerate(frames):
+        cv2.imwrite(str(images / f"{i:04d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    video = root / "camera.mp4"
+    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 10.0, (320, 240))
+    for img in frames[:5] * 40:           # the camera keeps seeing the start of the route
+        writer.write(cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+    writer.release()
+    proc = subprocess.run([sys.executable, "-m", "robot.run", "--mode", "map", "--images", str(images),
+                           "--config", str(root / "tiny.yaml"), "--out", str(root / "run"), "--quiet"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return root
+
+
+def _start_emulator():
+    """The emulator process, its pty path and a queue of its status lines (stderr, every 0.1 s)."""
+    emu = subprocess.Popen([sys.executable, "-m", "robot.limo_emulator", "--status-every", "0.1"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    port = emu.stdout.readline().strip()
+    assert port.startswith("/dev/"), port
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(line) for line in emu.stderr], daemon=True).start()
+    return emu, port, lines
+
+
+def _commands(lines: "queue.Queue[str]", timeout_s: float) -> list[tuple[float, float]]:
+    """Commanded (v, w) of the status lines arriving within ``timeout_s``."""
+    out, deadline = [], time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        try:
+            m = re.search(r"cmd v=([-+0-9.]+) w=([-+0-9.]+)", lines.get(timeout=0.2))
+        except queue.Empty:
+            continue
+        if m:
+            out.append((float(m.group(1)), float(m.group(2))))
+    return out
+
+
+def test_ctrl_c_during_serial_navigation_leaves_the_base_at_zero(serial_setup):
+    root = serial_setup
+    emu, port, lines = _start_emulator()
+    try:
+        nav = subprocess.Popen([sys.executable, "-m", "robot.run", "--mode", "navigate", "--hal", "serial",
+                                "--port", port, "--camera", str(root / "camera.mp4"), "--map",
+                                str(root / "run" / "map"), "--goal", "15", "--config", str(root / "tiny.yaml"),
+                                "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        moving = False
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and not moving:      # wait until the robot is driving
+            moving = any(abs(v) > 0.01 or abs(w) > 0.01 for v, w in _commands(lines, 0.5))
+            assert nav.poll() is None, nav.communicate()[1]
+        assert moving, "the navigation never commanded motion over the serial link"
+        nav.send_signal(signal.SIGINT)
+        _, err = nav.communicate(timeout=30)
+        assert nav.returncode == 130, err
+        assert "stopped" in err and "Traceback" not in err
+        # the emulator's commanded velocity is zero right after the CLI exits (before its own watchdog)
+        while not lines.empty():                                  # status from before the exit
+            lines.get_nowait()
+        after = _commands(lines, 0.4)
+        assert after and all(v == 0.0 and w == 0.0 for v, w in after), after
+    finally:
+        emu.send_signal(signal.SIGINT)
+        emu.communicate(timeout=10)
+
+
+def test_serial_navigation_needs_a_port_and_a_goal(serial_setup):
+    root = serial_setup
+    base = [sys.executable, "-m", "robot.run", "--mode", "navigate", "--hal", "serial", "--map",
+            str(root / "run" / "map"), "--config", str(root / "tiny.yaml")]
+    no_port = subprocess.run(base + ["--goal", "3"], capture_output=True, text=True, timeout=60)
+    assert no_port.returncode == 2 and "--port" in no_port.stderr
+    no_goal = subprocess.run(base + ["--port", "loop://"], capture_output=True, text=True, timeout=60)
+    assert no_goal.returncode == 2 and "--goal" in no_goal.stderr
+    bad_node = subprocess.run(base + ["--port", "loop://", "--goal", "999"], capture_output=True, text=True,
+                              timeout=60)
+    assert bad_node.returncode == 2 and "999" in bad_node.stderr and "Traceback" not in bad_node.stderr
