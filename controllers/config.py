@@ -163,12 +163,25 @@ class SupervisorConfig:
     #: Ticks without confirming any new node before the robot counts as lost (stuck against
     #: an obstacle, or hovering between two nodes without ever passing ``t_milestone``).
     progress_patience_ticks: int = 600
+    #: Also confirm a node ahead (once L_i is left) when its filtered score is the best of the
+    #: whole map and above ``t_lost``, not only above ``t_milestone``: under other lighting than
+    #: the mapping run a node may never pass ``t_milestone`` although the robot stands at it.
+    #: False: the paper's rule alone. Meaningless on maps of a handful of nodes (some node is
+    #: always the best), so synthetic three-node tests of the paper's rule switch it off.
+    confirm_best_of_map: bool = True
+    #: Once the goal node is confirmed, keep steering at it until its filtered score has not
+    #: improved for this many ticks (or falls clearly below its peak): a view well before the
+    #: goal node may already pass ``t_milestone``. 0: arrive at the first confirmation.
+    goal_settle_ticks: int = 10
 
     def __post_init__(self) -> None:
         _check_count("window_behind", self.window_behind, 0)
         _check_count("window_ahead", self.window_ahead, 1)
         _check_count("lost_patience_ticks", self.lost_patience_ticks, 1)
         _check_count("progress_patience_ticks", self.progress_patience_ticks, 1)
+        _check_count("goal_settle_ticks", self.goal_settle_ticks, 0)
+        if not isinstance(self.confirm_best_of_map, bool):
+            raise ValueError(f"confirm_best_of_map must be true or false, got {self.confirm_best_of_map!r}")
 
 
 @dataclass(frozen=True)
@@ -201,8 +214,11 @@ class ActionSpeeds:
     """
 
     forward: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.25, 0.0))
-    left: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.0, 0.5))
-    right: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.0, -0.5))
+    # Left / right creep forward: a camera-only robot turning in place sees the same two
+    # views again and again, so a left-right vote flip-flop (the sides score alike when the
+    # target is straight ahead but still far) would be a limit cycle; creeping breaks it.
+    left: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.08, 0.5))
+    right: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.08, -0.5))
     forward_left: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.2, 0.3))
     forward_right: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.2, -0.3))
     search_rotate: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.0, 0.5))
@@ -245,6 +261,14 @@ class NavigationConfig:
     #: Consecutive ticks in which no third exceeds ``t_limited_control`` (the target is out of
     #: sight) before the robot turns counter-clockwise in place to look for it.
     no_vote_patience_ticks: int = 6
+    #: Before that patience starts, the first ticks without a vote follow the third that scores
+    #: best anyway (LEFT / FORWARD / RIGHT, a weak vote; left and right creep forward):
+    #: between two nodes the walkthrough went forward, so a target that no third recognises
+    #: clearly is more likely ahead than behind (under other lighting the thirds often miss it
+    #: until closer), and turning in place away from it makes it worse.
+    #: 0: the paper's literal behaviour (nothing happens). The supervisor still watches: if the
+    #: view leaves the window's nodes the robot is lost and re-localises.
+    blind_forward_ticks: int = 20
     #: Global re-localisations allowed in one episode before giving up (FAILED); bounds a
     #: robot that keeps getting lost.
     max_relocalisations: int = 5
@@ -254,6 +278,7 @@ class NavigationConfig:
             raise ValueError(f"hold_action_between_votes must be true or false, "
                              f"got {self.hold_action_between_votes!r}")
         _check_count("no_vote_patience_ticks", self.no_vote_patience_ticks, 1)
+        _check_count("blind_forward_ticks", self.blind_forward_ticks, 0)
         _check_count("max_relocalisations", self.max_relocalisations, 0)
 
     def with_thresholds(self, thresholds: Thresholds) -> "NavigationConfig":

@@ -150,11 +150,19 @@ class InitialLocaliser:
     """
 
     def __init__(self, node_ids: Sequence[NodeId], t_milestone: float,
-                 config: LocaliserConfig = LocaliserConfig()):
+                 config: LocaliserConfig = LocaliserConfig(), *,
+                 expected: Sequence[NodeId] = (), t_expected: Optional[float] = None):
+        """``expected`` / ``t_expected``: nodes where the robot is likely to be (a re-localisation:
+        the stretch of the plan it was driving) are accepted when they are the best node of the
+        whole row above the lower ``t_expected``; any other node needs ``t_milestone``. Under
+        other lighting than the mapping run no view may pass ``t_milestone`` at all, while the
+        best match near the last known place is still the right answer."""
         if len(node_ids) == 0:
             raise LocalisationError("the map has no nodes to localise against")
         self.node_ids = plain_node_ids(node_ids)
         self.t_milestone = float(t_milestone)
+        self.expected = frozenset(plain_node_ids(expected)) if len(expected) else frozenset()
+        self.t_expected = float(t_milestone if t_expected is None else t_expected)
         self.config = config
         self._turn = TurnMeter()
         self._ticks = 0
@@ -171,6 +179,8 @@ class InitialLocaliser:
         if self._final is not None:
             return self._final
         best = localise(similarities, self.node_ids, self.t_milestone)
+        if not best.accepted and best.best_node in self.expected and best.best_score > self.t_expected:
+            best = Localisation(best.best_node, best.best_score, True, self.t_expected)
         turned = self._turn.update(heading_rad)
         self._ticks += 1
 

@@ -17,11 +17,15 @@ States (:class:`NavState`):
 * LOCALISING: initial localisation; holds still to confirm a match, or turns
   counter-clockwise while nothing passes ``t_milestone``; FAILED after a full turn.
 * NAVIGATING: following the planned path; actions from the two-cycle voter.
-* SEARCHING: no third has seen the target for ``no_vote_patience_ticks`` ticks; turns
+* (weak vote) the first ``blind_forward_ticks`` ticks without a vote follow the best third
+  anyway (LEFT / FORWARD / RIGHT): the target is more likely ahead than behind.
+* SEARCHING: no third has seen the target for ``no_vote_patience_ticks`` more ticks; turns
   counter-clockwise in place until one does (back to NAVIGATING), or re-localises after a
   full turn.
 * RELOCALISING: the supervisor reported the robot lost; global localisation as in
-  LOCALISING, then a new plan from the node found (counted in ``relocalisations``).
+  LOCALISING, but only nodes from which the goal is reachable count, and the stretch of the
+  old plan around the last node is accepted as the best of the map above ``t_lost`` (other
+  nodes need ``t_milestone``); then a new plan from the node found (``relocalisations``).
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero.
 * FAILED (final): cannot place itself, goal unreachable, or too many re-localisations;
   ``reason`` says which; velocity zero.
@@ -46,10 +50,14 @@ from controllers.localisation import (InitialLocaliser, Localisation, Localisati
 from controllers.planner import GlobalPlanner, PlanningError
 from controllers.similarity_filter import SimilarityFilter
 from controllers.supervisor import NodeSwitchSupervisor, SupervisorDecision, SupervisorState
-from controllers.voter import ThirdScores, TwoCycleVoter, VoteKind, VoteResult
+from controllers.voter import Third, ThirdScores, TwoCycleVoter, VoteKind, VoteResult
 
 NodeId = Hashable
 ThirdsInput = Union[Callable[[NodeId], Sequence[float]], np.ndarray, None]
+
+
+#: The action while no third passes t_limited_control (a weak vote, see blind_forward_ticks).
+_WEAK_ACTION = {Third.LEFT: Action.LEFT, Third.MIDDLE: Action.FORWARD, Third.RIGHT: Action.RIGHT}
 
 
 class NavigationInputError(ValueError):
@@ -137,6 +145,9 @@ class Navigator:
         self._search_ticks = 0
         self._final: Optional[NavigationStep] = None
         self._planning_error: Optional[PlanningError] = None
+        self._contrast: Optional[np.ndarray] = None
+        reaching = nx.ancestors(graph, goal_node) | {goal_node}
+        self._reaches_goal = np.array([n in reaching for n in self.node_ids])
 
     @classmethod
     def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
@@ -173,13 +184,16 @@ class Navigator:
         return self._planning_error
 
     def tick(self, similarities: np.ndarray, thirds: ThirdsInput = None,
-             heading_rad: Optional[float] = None) -> NavigationStep:
+             heading_rad: Optional[float] = None,
+             thirds_contrast: Optional[np.ndarray] = None) -> NavigationStep:
         """One control tick.
 
         ``similarities``: the current full view's cosine similarity to every node (column order
         ``node_ids``); ``thirds``: see the module docstring; ``heading_rad``: the yaw from
         odometry or the IMU in radians (any fixed frame, may wrap; only differences are used),
-        or None when the base has neither.
+        or None when the base has neither. ``thirds_contrast``: optional ``(N, 3)`` contrast of
+        the thirds against all nodes (:func:`controllers.voter.contrast_thirds`); when given, a
+        third votes when its contrast, not its cosine, exceeds ``t_limited_control``.
         """
         try:
             row = similarity_row(similarities, len(self.node_ids), "similarities")
@@ -190,16 +204,24 @@ class Navigator:
         self._ticks += 1
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
+        self._contrast = thirds_contrast
         return self._navigate_tick(row, thirds, heading_rad)
 
     # -- localisation ---------------------------------------------------------------------
 
-    def _new_localiser(self) -> InitialLocaliser:
+    def _new_localiser(self, expected: Sequence[NodeId] = ()) -> InitialLocaliser:
         return InitialLocaliser(self.node_ids, self.config.thresholds.t_milestone,
-                                self.config.localiser)
+                                self.config.localiser, expected=expected,
+                                t_expected=self.config.thresholds.t_lost)
 
     def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         self.filter.update(row)  # keep the filter warm for the supervisor that follows
+        if self._state is NavState.RELOCALISING:
+            # A re-localisation only accepts nodes from which the goal can still be reached:
+            # the robot was on its way there, so a node with no arc chain to the goal is a
+            # look-alike (the first localisation keeps every node, so that an unreachable goal
+            # is reported as such).
+            row = np.where(self._reaches_goal, row, -1.0)
         result = self._localiser.tick(row, heading_rad)
         if result.status is LocaliserStatus.FAILED:
             return self._fail(result.reason, turned_rad=result.turned_rad)
@@ -228,8 +250,15 @@ class Navigator:
         if self._relocalisations > self.config.max_relocalisations:
             return self._fail(f"{why}; gave up after {self.config.max_relocalisations} "
                               "re-localisations", decision=decision)
+        # Prefer the stretch of the plan the robot was driving: those nodes are accepted as the
+        # best of the map above t_lost, any other node needs t_milestone (see InitialLocaliser).
+        expected: Tuple[NodeId, ...] = ()
+        if decision is not None and self._plan:
+            sup = self.config.supervisor
+            i = decision.path_index
+            expected = self._plan[max(0, i - sup.window_behind): i + sup.window_ahead + 2]
         self._supervisor = None
-        self._localiser = self._new_localiser()
+        self._localiser = self._new_localiser(expected)
         self._state = NavState.RELOCALISING
         return self._step(Action.NONE, decision=decision,
                           reason=f"{why}; re-localising globally ({self._relocalisations})")
@@ -253,7 +282,10 @@ class Navigator:
             return self._relocalise(decision.reason, decision)
 
         scores = self._thirds_for(decision.target_node, thirds)
-        vote = self.voter.tick(scores)
+        gate = None   # what must exceed t_limited_control (None: the scores themselves)
+        if self._contrast is not None:
+            gate = self._thirds_for(decision.target_node, self._contrast)
+        vote = self.voter.tick(scores, gate)
         self._no_vote_ticks = self._no_vote_ticks + 1 if vote.kind is VoteKind.NO_VOTE else 0
 
         if self._state is NavState.SEARCHING:
@@ -271,7 +303,17 @@ class Navigator:
                               f"searching for target {decision.target_node!r}: {vote.reason}",
                               turned_rad=turned)
 
-        if self._no_vote_ticks >= self.config.no_vote_patience_ticks:
+        blind = self.config.blind_forward_ticks
+        if vote.kind is VoteKind.NO_VOTE and 0 < self._no_vote_ticks <= blind:
+            # A weak vote: between two nodes the walkthrough drove forward; a target that no third
+            # recognises yet (a poor view of it, or a view that changes a lot between the two
+            # nodes) is more likely ahead than behind, and turning away makes it worse.
+            # The best third's own action (left and right creep forward, see ActionSpeeds).
+            action = _WEAK_ACTION[scores.best()[0]]
+            return self._step(action, decision, scores, vote,
+                              f"{decision.reason}; {vote.reason}; {action.value} on a weak vote "
+                              f"({self._no_vote_ticks}/{blind})")
+        if self._no_vote_ticks >= blind + self.config.no_vote_patience_ticks:
             self._state = NavState.SEARCHING
             self._search, self._search_ticks = TurnMeter(), 0
             self._search.update(heading_rad)

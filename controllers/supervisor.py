@@ -21,9 +21,17 @@ Additions, each for a failure seen in practice:
   while LEAVING it must also beat the current node's score (the view resembles it more than
   L_i). This is the paper's "general localisation" limited to the window; it lets a robot
   that missed a milestone, or a dense map, keep going.
-* **Lost.** When the best filtered score inside the window stays below ``t_lost`` for
-  ``lost_patience_ticks`` ticks, or no node is confirmed for ``progress_patience_ticks``
-  ticks, the state is LOST (final for this supervisor): the caller must re-localise globally
+* **Best of the map.** Under other lighting than the mapping run every cosine drops (a node's
+  own view from ~0.9 to ~0.5), and a node may never pass ``t_milestone`` although the robot
+  stands at it. Once the robot has left L_i (APPROACHING), a node ahead in the window is
+  therefore also confirmed when its filtered score
+  is the highest of the *whole map* (no other place explains the view better) and above
+  ``t_lost`` (it is not a view of nothing). The rule adapts to the conditions of the day
+  because it compares nodes under the same conditions instead of against a fixed level.
+* **Lost.** When the best filtered score inside the window stays below ``t_lost`` while some
+  node outside the window scores higher (the view shows another place, not merely a poor view
+  of this one) for ``lost_patience_ticks`` ticks, or no node is confirmed for
+  ``progress_patience_ticks`` ticks, the state is LOST (final for this supervisor): the caller must re-localise globally
   and re-plan, then build a new supervisor (passing the same filter keeps its state).
 
 GOAL_REACHED and LOST are final: later ticks still update the filter but repeat the final
@@ -114,6 +122,10 @@ class NodeSwitchSupervisor:
         self._lost_ticks = 0
         self._ticks_since_progress = 0
         self._final: Optional[SupervisorDecision] = None
+        self._map_best = -1.0
+        self._goal_peak: Optional[float] = None
+        self._goal_flat = 0
+        self._goal_reason = ""
 
     @property
     def index(self) -> int:
@@ -143,6 +155,7 @@ class NodeSwitchSupervisor:
         if self._final is not None:
             return replace(self._final, confirmed_node=None)
         path_scores = filtered[self._path_columns]
+        self._map_best = float(filtered.max())
         thresholds = self.config.thresholds
         last = len(self.path) - 1
         self._ticks_since_progress += 1
@@ -153,6 +166,8 @@ class NodeSwitchSupervisor:
             return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[0],
                                 "the start node is the goal node")
 
+        if self._goal_peak is not None:
+            return self._settle_at_goal(path_scores)
         here = float(path_scores[self._index])
         ahead = self._confirmable_ahead(path_scores, here)
         if ahead is not None:
@@ -160,13 +175,23 @@ class NodeSwitchSupervisor:
             confirmed = self.path[ahead]
             self._index, self._state = ahead, SupervisorState.LEAVING
             self._ticks_since_progress = 0
-            reason = (f"reached node {confirmed!r}: filtered {path_scores[ahead]:.3f} > t_milestone "
-                      f"{thresholds.t_milestone:.3f}")
+            score = float(path_scores[ahead])
+            reason = (f"reached node {confirmed!r}: filtered {score:.3f} > t_milestone "
+                      f"{thresholds.t_milestone:.3f}" if score > thresholds.t_milestone else
+                      f"reached node {confirmed!r}: filtered {score:.3f} is the best of the map "
+                      f"(> t_lost {thresholds.t_lost:.3f})")
             if passed:
                 reason += f" (skipped {', '.join(map(repr, passed))}, passed unnoticed)"
             if ahead == last:
-                return self._finish(SupervisorState.GOAL_REACHED, path_scores, confirmed,
-                                    "goal " + reason)
+                if self.config.supervisor.goal_settle_ticks == 0:
+                    return self._finish(SupervisorState.GOAL_REACHED, path_scores, confirmed,
+                                        "goal " + reason)
+                # Keep steering at the goal until its score stops rising (see _settle_at_goal).
+                self._index = last - 1
+                self._state = SupervisorState.APPROACHING
+                self._goal_peak, self._goal_flat, self._goal_reason = score, 0, "goal " + reason
+                return self._decision(self._state, path_scores, None,
+                                      f"goal in sight: {reason}; driving on while it improves")
         elif self._state is SupervisorState.LEAVING and here < thresholds.t_change_node:
             self._state = SupervisorState.APPROACHING
             reason = (f"left node {self.path[self._index]!r}: filtered {here:.3f} < t_change_node "
@@ -174,7 +199,8 @@ class NodeSwitchSupervisor:
 
         window = self.window()
         best = float(path_scores[window.start:window.stop].max())
-        self._lost_ticks = self._lost_ticks + 1 if best < thresholds.t_lost else 0
+        elsewhere = self._map_best > best   # the best node of the map lies outside the window
+        self._lost_ticks = self._lost_ticks + 1 if (best < thresholds.t_lost and elsewhere) else 0
         cfg = self.config.supervisor
         if self._lost_ticks >= cfg.lost_patience_ticks:
             return self._finish(SupervisorState.LOST, path_scores, confirmed,
@@ -189,6 +215,30 @@ class NodeSwitchSupervisor:
                       f"{here:.3f} / {path_scores[self._index + 1]:.3f}")
         return self._decision(self._state, path_scores, confirmed, reason)
 
+    def _settle_at_goal(self, path_scores: np.ndarray) -> SupervisorDecision:
+        """The goal passed its confirmation; arrive once its filtered score stops improving.
+
+        A view some way before the goal node may already pass ``t_milestone`` (the band is
+        wide), so stopping at the first pass stops short. The robot keeps steering at the goal
+        while the score sets new highs; it arrives when the score has not improved for
+        ``goal_settle_ticks`` ticks or has fallen clearly below its peak (it is passing the
+        node). Standing still at the goal arrives after ``goal_settle_ticks``.
+        """
+        last = len(self.path) - 1
+        score = float(path_scores[last])
+        cfg = self.config.supervisor
+        if score > self._goal_peak + 0.005:
+            self._goal_peak, self._goal_flat = score, 0
+        else:
+            self._goal_flat += 1
+        if self._goal_flat >= cfg.goal_settle_ticks or score < self._goal_peak - 0.03:
+            return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[last],
+                                f"{self._goal_reason}; settled at filtered {score:.3f} "
+                                f"(peak {self._goal_peak:.3f})")
+        return self._decision(self._state, path_scores, None,
+                              f"goal in sight: filtered {score:.3f}, peak {self._goal_peak:.3f}, "
+                              f"{self._goal_flat}/{cfg.goal_settle_ticks} ticks without improving")
+
     def _confirmable_ahead(self, path_scores: np.ndarray, here: float) -> Optional[int]:
         """The path position ahead (inside the window) to confirm this tick, if any."""
         window = self.window()
@@ -198,7 +248,12 @@ class NodeSwitchSupervisor:
         scores = path_scores[first:window.stop]
         k = int(np.argmax(scores))  # ties: the nearest node
         score = float(scores[k])
-        if score <= self.config.thresholds.t_milestone:
+        thresholds = self.config.thresholds
+        # only once the robot has left L_i (APPROACHING), so the paper's order is kept
+        best_of_map = (self.config.supervisor.confirm_best_of_map
+                       and self._state is SupervisorState.APPROACHING and score >= self._map_best
+                       and score > thresholds.t_lost)
+        if score <= thresholds.t_milestone and not best_of_map:
             return None
         if self._state is SupervisorState.LEAVING and score <= here:
             return None

@@ -35,6 +35,8 @@ import math
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
+import numpy as np
+
 from controllers.actions import Action
 
 
@@ -99,6 +101,28 @@ class VoteResult:
     reason: str
 
 
+def contrast_thirds(scores: np.ndarray) -> np.ndarray:
+    """Each third's similarity to every node, rescaled against the other nodes of the map.
+
+    ``scores[j, k]`` is the cosine of third ``k`` (Left, Middle, Right) to node ``j``. Column by
+    column, ``(s - median) / (max - median)``: 1 for the node this third resembles most, 0 for a
+    typical (unrelated) node, negative below that. Why: a change of lighting or of a few props
+    lowers every cosine of a view together (in the simulator a node's own view drops from ~0.9
+    to ~0.5), so a fixed ``t_limited_control`` on raw cosines stops every vote exactly when the
+    conditions differ from the mapping run; the contrast keeps the ranking and the relative gap,
+    which is what "this third sees the target" means. It also removes the bias of a third that
+    scores high against everything (a bland wall). Needs at least two nodes; a column with no
+    spread (max == median) is all zeros.
+    """
+    s = np.asarray(scores, dtype=float)
+    if s.ndim != 2 or s.shape[1] != 3 or s.shape[0] < 2:
+        raise ValueError(f"expected thirds scores of shape (nodes >= 2, 3), got {s.shape}")
+    median = np.median(s, axis=0)
+    spread = s.max(axis=0) - median
+    safe = np.where(spread > 1e-9, spread, 1.0)
+    return np.where(spread > 1e-9, (s - median) / safe, 0.0)
+
+
 _AGREE = {Third.LEFT: Action.LEFT, Third.MIDDLE: Action.FORWARD, Third.RIGHT: Action.RIGHT}
 
 
@@ -135,9 +159,19 @@ class TwoCycleVoter:
         self._stored = None
         self._held = Action.NONE
 
-    def tick(self, scores: "ThirdScores | Sequence[float]") -> VoteResult:
-        """One cycle: vote from ``scores`` (left, middle, right) and return the action."""
+    def tick(self, scores: "ThirdScores | Sequence[float]",
+             contrast: "ThirdScores | Sequence[float] | None" = None) -> VoteResult:
+        """One cycle: vote from ``scores`` (left, middle, right) and return the action.
+
+        Without ``contrast`` this is the paper's rule on cosines: the third with the highest
+        similarity to the target votes when it exceeds ``t_limited_control``. With ``contrast``
+        (the thirds' :func:`contrast_thirds` values for the target) the same rule runs on the
+        contrast instead, which survives lighting changes and removes each third's own bias
+        (a bland third that resembles everything); ``scores`` are then kept for the record only.
+        """
         scores = ThirdScores.of(scores)
+        if contrast is not None:
+            scores = ThirdScores.of(contrast)
         third, best = scores.best()
         vote = third if best > self.t_limited_control else None
         stored = self._stored

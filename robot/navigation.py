@@ -5,7 +5,8 @@ HAL-agnostic: the same loop runs the simulated Limo and the serial Limo. Every c
     frame = base.read()                                   # camera (+ odometry / IMU)
     x = descriptor.describe_thirds([frame.rgb])[0]        # (4, D): full view, Left, Middle, Right
     row = node_descriptors @ x[0]                         # similarity to every node (one product)
-    step = navigator.tick(row, thirds=node -> node_descriptor @ x[1:].T, heading_rad=yaw)
+    thirds = node_descriptors @ x[1:].T                   # (N, 3): every third against every node
+    step = navigator.tick(row, thirds=thirds, thirds_contrast=contrast_thirds(thirds), heading_rad=yaw)
     base.apply(step.velocity); base.tick()
 
 and it stops when the navigator declares arrival or failure, the step budget runs out, the base
@@ -48,6 +49,7 @@ from controllers.config import NavigationConfig, Thresholds
 from controllers.localisation import GoalNotLocalisedError, Localisation, localise_goal_image
 from controllers.navigator import NavigationStep, Navigator, NavState
 from controllers.planner import UnknownNodeError, UnreachableGoalError
+from controllers.voter import contrast_thirds
 from maps.graph import MapError, TopoMap
 from maps.store import LoadedMap
 from robot.descriptors.base import Descriptor, DescriptorError
@@ -92,10 +94,16 @@ class EpisodeConfig:
     min_steps: int = 600
     #: the budget when the route length is unknown (10 minutes at 10 Hz)
     default_max_steps: int = 6000
+    #: the voter sees each third's similarity to the target as a contrast against the other
+    #: nodes (controllers.voter.contrast_thirds: 1 = the node this third resembles most,
+    #: 0 = a typical node) instead of the raw cosine, so votes survive lighting changes that
+    #: lower every cosine; t_limited_control is then on that scale (CONTROL_CONTRAST)
+    thirds_contrast: bool = True
 
     def __post_init__(self) -> None:
-        if not isinstance(self.thresholds_from_map, bool):
-            raise ValueError(f"thresholds_from_map must be true or false, got {self.thresholds_from_map!r}")
+        for name in ("thresholds_from_map", "thirds_contrast"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if not (isinstance(self.budget_factor, (int, float)) and math.isfinite(self.budget_factor)
                 and self.budget_factor >= 1.0):
             raise ValueError(f"budget_factor must be a number >= 1, got {self.budget_factor!r}")
@@ -170,15 +178,22 @@ def map_self_similarity(loaded_map: LoadedMap) -> float:
     return float(np.median(values)) if values.size else 1.0
 
 
-def derive_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig) -> Thresholds:
+#: t_limited_control on the contrast scale of controllers.voter.contrast_thirds: a third votes
+#: when the target is closer to the node it resembles most than to a typical node of the map.
+CONTROL_CONTRAST = 0.5
+
+
+def derive_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig, *,
+                      thirds_contrast: bool = True) -> Thresholds:
     """The navigation thresholds derived from the map (the default; ``EpisodeConfig``).
 
     Two consecutive nodes score about ``T_add_new_node`` against each other (the mapper added a
     node when the similarity to the last one fell below it), and a view taken at a node scores
     about :func:`map_self_similarity` against it. ``Thresholds.from_map`` places ``t_milestone``,
     ``t_change_node`` and ``t_lost`` as fractions of that band (MILESTONE_FRACTION,
-    CHANGE_FRACTION, LOST_FRACTION of this module). ``t_limited_control`` is kept from
-    ``navigation.thresholds``: the thirds' scale does not follow the map's node spacing.
+    CHANGE_FRACTION, LOST_FRACTION of this module). ``t_limited_control`` is CONTROL_CONTRAST when
+    the voter sees contrast scores (``thirds_contrast``), else kept from ``navigation.thresholds``:
+    the thirds' scale does not follow the map's node spacing.
     """
     t_add = float(loaded_map.thresholds.T_add_new_node)
     self_sim = map_self_similarity(loaded_map)
@@ -186,7 +201,8 @@ def derive_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig) -> Th
         self_sim = min(1.0, t_add + 0.1)   # a degenerate log: keep a usable band above T_add_new_node
     return Thresholds.from_map(t_add, self_sim, milestone_fraction=MILESTONE_FRACTION,
                                change_fraction=CHANGE_FRACTION, lost_fraction=LOST_FRACTION,
-                               t_limited_control=navigation.thresholds.t_limited_control)
+                               t_limited_control=CONTROL_CONTRAST if thirds_contrast
+                               else navigation.thresholds.t_limited_control)
 
 
 GoalSpec = Union[int, str, Path, np.ndarray]
@@ -358,13 +374,14 @@ def _plain(nodes: Sequence) -> tuple[int, ...]:
 
 def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_node: int,
                 config: NavigationConfig, max_steps: int,
-                observer: Optional[Observer] = None) -> EpisodeOutcome:
+                observer: Optional[Observer] = None, *, thirds_contrast: bool = True) -> EpisodeOutcome:
     """Drive the connected ``base`` to ``goal_node`` of ``topomap``; see the module docstring.
 
     ``descriptor`` must be the map's (see :func:`attach_descriptor`); ``config.thresholds`` are
     used as given (derive them with :func:`derive_thresholds` first). ``max_steps``: the step
     budget (control ticks). ``observer(record)`` is called after every step; returning a string
-    ends the episode as ABORTED with that reason.
+    ends the episode as ABORTED with that reason. ``thirds_contrast``: the voter gets the thirds'
+    contrast against all nodes (:func:`controllers.voter.contrast_thirds`) instead of raw cosines.
 
     Raises :class:`UnreachableGoalError` when the robot localised at a node from which no arc
     chain leads to the goal, :class:`HalError` when the base gives no camera image; the base is
@@ -374,7 +391,6 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
     node_ids = topomap.node_ids
     nodes = np.ascontiguousarray(topomap.descriptors, dtype=np.float32)
-    row_of = {int(n): k for k, n in enumerate(node_ids.tolist())}
     navigator = Navigator(topomap.graph, node_ids, goal_node, config)
     heading = _Heading()
     timings: list[StepTiming] = []
@@ -402,7 +418,10 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             describe_ms = _ms(t0)
 
             t0 = time.perf_counter()
-            step = navigator.tick(similarities, thirds=lambda node: nodes[row_of[int(node)]] @ views[1:].T,
+            # (N, 3): every third against every node, one product (the contrast needs them all)
+            thirds = nodes @ views[1:].T
+            step = navigator.tick(similarities, thirds=thirds,
+                                  thirds_contrast=contrast_thirds(thirds) if thirds_contrast else None,
                                   heading_rad=heading.update(frame))
             applied = base.apply(step.velocity)
             decide_ms = _ms(t0)
@@ -451,4 +470,5 @@ def configure_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig,
     ``episode.thresholds_from_map``, else as written."""
     if not episode.thresholds_from_map:
         return navigation
-    return replace(navigation, thresholds=derive_thresholds(loaded_map, navigation))
+    return replace(navigation, thresholds=derive_thresholds(loaded_map, navigation,
+                                                            thirds_contrast=episode.thirds_contrast))

@@ -261,7 +261,7 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
             collisions_before = truth.collision_count()
             recorder = _TruthRecorder(base, video, bar)
             outcome = run_episode(base, loaded.topomap, descriptor, resolved.node, nav_config, budget,
-                                  observer=recorder)
+                                  observer=recorder, thirds_contrast=episode.thirds_contrast)
             collisions = truth.collision_count() - collisions_before
             toppled = truth.toppled()
     finally:

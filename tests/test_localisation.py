@@ -120,3 +120,18 @@ def test_robot_facing_away_turns_until_it_recognises_its_node():
             pose = drive(pose, speeds.search_rotate, 0.1)
     assert step.status is LocaliserStatus.LOCALISED and step.node == 2
     assert 0.5 < step.turned_rad < 2 * math.pi           # it had to turn, less than a full turn
+
+
+def test_relocalisation_accepts_an_expected_node_below_t_milestone_but_not_another():
+    """Re-localising, the nodes of the plan stretch the robot was driving are accepted as the
+    best of the row above a lower threshold; any other node still needs t_milestone."""
+    row_expected = np.array([0.2, 0.45, 0.3, 0.25])      # node 1 best, below t_milestone 0.6
+    loc = InitialLocaliser(range(4), 0.6, LocaliserConfig(confirm_ticks=2), expected=[1, 2], t_expected=0.4)
+    steps = [loc.tick(row_expected) for _ in range(2)]
+    assert steps[-1].status is LocaliserStatus.LOCALISED and steps[-1].node == 1
+    row_other = np.array([0.2, 0.3, 0.3, 0.45])          # node 3 best, not expected
+    loc = InitialLocaliser(range(4), 0.6, LocaliserConfig(confirm_ticks=2), expected=[1, 2], t_expected=0.4)
+    assert all(loc.tick(row_other, heading_rad=0.0).status is LocaliserStatus.ROTATING for _ in range(3))
+    # without expected nodes the threshold is t_milestone as before
+    loc = InitialLocaliser(range(4), 0.6, LocaliserConfig(confirm_ticks=2))
+    assert loc.tick(row_expected, heading_rad=0.0).status is LocaliserStatus.ROTATING

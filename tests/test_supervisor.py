@@ -12,10 +12,14 @@ from controllers.similarity_filter import SimilarityFilter
 from controllers.supervisor import NodeSwitchSupervisor, SupervisorState
 from tests.synthetic_places import SyntheticPlaces, chain, offset
 
-CONFIG = NavigationConfig()
+# The paper's rule alone: on three-node maps "the best node of the map" is always some node,
+# so the appearance-adaptive confirmation is tested on its own below.
+PAPER = SupervisorConfig(confirm_best_of_map=False, goal_settle_ticks=0)
+CONFIG = NavigationConfig(supervisor=PAPER)
 TH = CONFIG.thresholds
 # a filter that passes every frame through unchanged: the control case for the filter tests
-PASS_THROUGH = NavigationConfig(filter=SimilarityFilterConfig(process_std=10.0, measurement_std=1e-6))
+PASS_THROUGH = NavigationConfig(filter=SimilarityFilterConfig(process_std=10.0, measurement_std=1e-6),
+                                supervisor=PAPER)
 
 
 def row(n_nodes, base=0.2, **scores):
@@ -141,7 +145,7 @@ def test_standing_still_at_the_goal_detects_arrival_despite_noise():
 def test_lost_then_relocalised_and_replanned():
     n = 8
     planner = GlobalPlanner.from_arcs(range(n), [(k, k + 1, 1.0) for k in range(n - 1)])
-    config = NavigationConfig(supervisor=SupervisorConfig(lost_patience_ticks=10))
+    config = NavigationConfig(supervisor=SupervisorConfig(lost_patience_ticks=10, goal_settle_ticks=0))
     shared = SimilarityFilter(n, config.filter)
     sup = NodeSwitchSupervisor(planner.plan(0, 7).nodes, range(n), config, shared)
     feed(sup, [row(n, n0=0.85, n1=0.4)] * 5)
@@ -166,7 +170,7 @@ def test_lost_then_relocalised_and_replanned():
 
 
 def test_not_lost_between_nodes_while_something_nearby_is_in_view():
-    config = NavigationConfig(supervisor=SupervisorConfig(lost_patience_ticks=5))
+    config = NavigationConfig(supervisor=SupervisorConfig(lost_patience_ticks=5, confirm_best_of_map=False))
     sup = NodeSwitchSupervisor([0, 1, 2], range(3), config)
     between = row(3, n0=TH.t_lost + 0.05, n1=TH.t_lost + 0.1)    # under both t_change and t_milestone
     decisions = feed(sup, [between] * 100)
@@ -174,7 +178,7 @@ def test_not_lost_between_nodes_while_something_nearby_is_in_view():
 
 
 def test_lost_when_no_node_is_confirmed_for_too_long():
-    config = NavigationConfig(supervisor=SupervisorConfig(progress_patience_ticks=50))
+    config = NavigationConfig(supervisor=SupervisorConfig(progress_patience_ticks=50, confirm_best_of_map=False))
     sup = NodeSwitchSupervisor([0, 1, 2], range(3), config)
     decisions = feed(sup, [row(3, n0=0.5, n1=0.55)] * 60)
     states = [d.state for d in decisions]
@@ -202,3 +206,51 @@ def test_thresholds_from_the_map_drive_the_same_logic():
     d = feed(sup, [row(2, n0=0.4, n1=0.58)] * 15)
     assert d[-1].state is SupervisorState.GOAL_REACHED
     assert d[-1].current_node == 1 and math.isclose(d[-1].current_score, 0.58, abs_tol=1e-9)
+
+
+def test_best_of_the_map_confirms_a_node_that_never_passes_t_milestone():
+    """Under other lighting every cosine drops: the robot at node 1 scores it only 0.5, below
+    t_milestone, yet node 1 is clearly the best of a 10-node map once node 0 is left."""
+    assert TH.t_lost < 0.55 < TH.t_milestone and 0.45 < TH.t_change_node
+    def drive(config):
+        sup = NodeSwitchSupervisor([0, 1, 2], range(10), config)
+        d = feed(sup, [row(10, n0=0.80, n1=0.30, n5=0.35)] * 20)[-1]        # at node 0
+        assert d.state is SupervisorState.LEAVING
+        return sup, feed(sup, [row(10, n0=0.45, n1=0.55, n5=0.35)] * 30)    # at node 1
+    _, decisions = drive(NavigationConfig())
+    confirmed = [d for d in decisions if d.confirmed_node is not None]
+    assert [d.confirmed_node for d in confirmed] == [1] and "best of the map" in confirmed[0].reason
+    # the paper's rule alone never confirms it
+    _, decisions = drive(CONFIG)
+    assert all(d.confirmed_node is None for d in decisions)
+
+
+def test_best_of_the_map_needs_the_current_node_left_and_a_score_above_t_lost():
+    sup = NodeSwitchSupervisor([0, 1, 2], range(10), NavigationConfig())
+    # node 1 beats node 0 but node 0 is still above t_change_node: still LEAVING, no confirmation
+    still = feed(sup, [row(10, n0=TH.t_change_node + 0.02, n1=TH.t_change_node + 0.03)] * 30)
+    assert all(d.confirmed_node is None for d in still)
+    # everything low (a view of nothing): node 1 is the best of the map but below t_lost
+    sup = NodeSwitchSupervisor([0, 1, 2], range(10), NavigationConfig())
+    low = feed(sup, [row(10, base=0.05, n0=TH.t_lost - 0.1, n1=TH.t_lost - 0.05)] * 30)
+    assert all(d.confirmed_node is None for d in low)
+
+
+def test_goal_is_declared_once_its_score_stops_improving_not_at_the_first_pass():
+    """A view before the goal node already passes t_milestone: the robot drives on while the
+    goal's score rises and arrives when it settles (or falls past the peak)."""
+    config = NavigationConfig(filter=PASS_THROUGH.filter, supervisor=SupervisorConfig(goal_settle_ticks=5))
+    sup = NodeSwitchSupervisor([0, 1], range(4), config)
+    feed(sup, [row(4, n0=0.85, n1=0.3)] * 3 + [row(4, n0=0.5, n1=0.5)] * 3)      # left node 0
+    rising = [row(4, n0=0.4, n1=TH.t_milestone + 0.02 * k) for k in range(1, 8)]
+    decisions = feed(sup, rising)
+    assert all(d.state is not SupervisorState.GOAL_REACHED for d in decisions)
+    assert decisions[-1].target_node == 1 and "goal in sight" in decisions[-1].reason
+    flat = feed(sup, [rising[-1]] * 5)
+    assert [d.state for d in flat].count(SupervisorState.GOAL_REACHED) == 1
+    assert flat[-1].state is SupervisorState.GOAL_REACHED and "settled" in flat[-1].reason
+    # passing the node: a clear fall below the peak arrives at once
+    sup = NodeSwitchSupervisor([0, 1], range(4), config)
+    feed(sup, [row(4, n0=0.85, n1=0.3)] * 3 + [row(4, n0=0.5, n1=0.5)] * 3 + rising)
+    d = sup.tick(row(4, n0=0.4, n1=TH.t_milestone + 0.02))
+    assert d.state is SupervisorState.GOAL_REACHED

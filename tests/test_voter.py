@@ -2,6 +2,7 @@
 
 import itertools
 
+import numpy as np
 import pytest
 
 from controllers.actions import Action
@@ -143,3 +144,34 @@ def test_bad_scores_are_rejected(bad):
 def test_bad_threshold_is_rejected():
     with pytest.raises(ValueError, match="t_limited_control"):
         TwoCycleVoter(1.5)
+
+
+def test_contrast_rescales_each_third_against_the_other_nodes():
+    from controllers.voter import contrast_thirds
+    scores = np.array([[0.30, 0.50, 0.20],    # node 0
+                       [0.20, 0.30, 0.40],    # node 1
+                       [0.10, 0.30, 0.20]])   # node 2
+    c = contrast_thirds(scores)
+    # per column: (s - median) / (max - median); the best node of each third gets 1
+    assert c[0, 0] == pytest.approx(1.0) and c[1, 0] == pytest.approx(0.0) and c[2, 0] == pytest.approx(-1.0)
+    assert c[0, 1] == pytest.approx(1.0) and c[1, 1] == pytest.approx(0.0)
+    assert c[1, 2] == pytest.approx(1.0) and c[0, 2] == pytest.approx(0.0)
+    # a global drop of every cosine (other lighting) leaves the contrast unchanged
+    assert np.allclose(contrast_thirds(0.5 * scores - 0.05), c)
+    # no spread: zeros, not a division by zero
+    assert np.all(contrast_thirds(np.full((3, 3), 0.4)) == 0.0)
+    with pytest.raises(ValueError, match="shape"):
+        contrast_thirds(np.zeros((1, 3)))
+
+
+def test_contrast_decides_the_vote_when_given():
+    voter = TwoCycleVoter(0.5)
+    # raw cosines all low (another lighting) but the middle third clearly sees the target
+    raw, contrast = (0.20, 0.25, 0.22), (0.3, 0.9, 0.1)
+    assert voter.tick(raw).kind is VoteKind.NO_VOTE                  # the paper's rule on cosines
+    first = voter.tick(raw, contrast)
+    second = voter.tick(raw, contrast)
+    assert first.kind is VoteKind.STORED and first.vote is Third.MIDDLE
+    assert second.action is Action.FORWARD
+    # a contrast below the threshold does not vote however high the cosine
+    assert voter.tick((0.9, 0.9, 0.9), (0.2, 0.3, 0.1)).kind is VoteKind.NO_VOTE
