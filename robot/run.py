@@ -248,6 +248,9 @@ def _navigation_run_errors() -> tuple[type[BaseException], ...]:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from robot.threads import limit_helper_threads
+
+    limit_helper_threads()
     from dataclasses import replace
 
     from robot.configfile import ConfigError

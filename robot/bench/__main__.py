@@ -18,6 +18,9 @@ COMMANDS = {
 
 
 def main(argv: list[str] | None = None) -> int:
+    from robot.threads import limit_helper_threads
+
+    limit_helper_threads()
     argv = sys.argv[1:] if argv is None else argv
     parser = argparse.ArgumentParser(prog="python -m robot.bench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
