@@ -109,18 +109,12 @@ def test_missing_goal_image_exits_2_naming_the_file(tiny_map, tmp_path):
     assert not result.exists()
 
 
-def test_route_short_through_the_serial_link_follows_the_plan(tiny_map, tmp_path):
+def test_route_short_through_the_serial_link_reaches_the_goal(tiny_map, tmp_path):
     """The same episode with every command crossing the serial backend as bytes: the PyBullet
-    Limo behind the base emulator on a pseudo-terminal, in real time (not lock-step).
-
-    Known gap: on this 2-core CPU a step (describe ~100 ms) overruns the 100 ms control period in
-    real time, and the episode does not yet reliably reach the goal as the lock-step sim HAL does;
-    this test checks the loop drives the route over the link (localises, follows planned nodes)."""
+    Limo behind the base emulator on a pseudo-terminal, in real time (not lock-step)."""
     proc, result = _navigate(tiny_map, tmp_path, "--route", "short", "--appearance-seed", "3",
                              "--hal", "serial-twin")
     data = json.loads(result.read_text())
-    assert proc.returncode in (0, 1), proc.stderr
-    assert "Traceback" not in proc.stderr
-    assert data["path_length_m"] > 2.0                     # it drove, through the serial link
-    planned = data["planned_nodes"]
-    assert len(set(data["visited_nodes"]) & set(planned)) >= 4   # and confirmed planned nodes on the way
+    assert proc.returncode == 0, (proc.stderr, data["reason"])
+    assert data["success"] and data["final_distance_m"] <= 1.0
+    assert data["path_length_m"] > 2.0
