@@ -310,6 +310,8 @@ def _describe_set(descriptor, images: ImageSet, role: str, progress: bool) -> np
 # --------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class BackendResult:
+    """The numbers of one backend: recall per k (mean and per vocabulary seed), size and speed."""
+
     label: str
     backend: str
     settings: dict               # the descriptor's own settings (identity), first seed
