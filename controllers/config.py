@@ -197,11 +197,32 @@ class LocaliserConfig:
     #: Tick budget of one search, for bases without a heading and for a robot that is stuck
     #: and cannot turn. Default: 2 pi at 0.5 rad/s and 10 Hz is 126 ticks, plus margin.
     max_search_ticks: int = 300
+    #: Not in the paper. A match must beat every node outside its own neighbourhood (nodes
+    #: within ``neighbourhood_hops`` arcs, either direction) by this margin. Corridors with
+    #: identical doors and blank walls make distant look-alikes score as high as the right
+    #: node; a margin (a ratio test, as in feature matching) rejects those ambiguous views.
+    #: Applies when the caller gives the map's neighbourhoods (the navigator does).
+    min_margin: float = 0.04
+    neighbourhood_hops: int = 2
+    #: Not in the paper. After a full turn in which no view passed, turn on to the best view
+    #: of that turn (above the floor, with the margin, best for at least two ticks in a row)
+    #: and localise there when it matches again within ``second_look_tolerance``: under other
+    #: lighting than the mapping run the right node may score below ``t_milestone`` at every
+    #: heading, while it is still clearly the best. False: give up after one turn (the paper).
+    second_look: bool = True
+    second_look_tolerance: float = 0.03
 
     def __post_init__(self) -> None:
         _check_count("confirm_ticks", self.confirm_ticks, 1)
         _check_positive("full_turn_rad", self.full_turn_rad)
         _check_count("max_search_ticks", self.max_search_ticks, 1)
+        _check_count("neighbourhood_hops", self.neighbourhood_hops, 0)
+        for name in ("min_margin", "second_look_tolerance"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 1.0:
+                raise ValueError(f"{name} must be a number in [0, 1), got {value!r}")
+        if not isinstance(self.second_look, bool):
+            raise ValueError(f"second_look must be true or false, got {self.second_look!r}")
 
 
 @dataclass(frozen=True)

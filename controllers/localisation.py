@@ -5,6 +5,11 @@ that similarity exceeds ``t_milestone`` (paper, "Initial Localization"). When no
 the robot turns counter-clockwise in place and tries again; after a full turn, measured by
 accumulating the heading the caller supplies (odometry or IMU yaw), or after a tick budget,
 the :class:`InitialLocaliser` reports that the robot cannot place itself.
+
+Two additions of ours (``LocaliserConfig``): with the map's neighbourhoods, a match must beat
+every node outside its neighbourhood by ``min_margin`` (an ambiguous view is no match), and
+after a fruitless full turn the robot turns on to the best view of that turn (the *second
+look*) and localises there when it matches again.
 """
 
 from __future__ import annotations
@@ -12,7 +17,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass
-from typing import Hashable, Optional, Sequence
+from typing import Hashable, Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -151,12 +156,19 @@ class InitialLocaliser:
 
     def __init__(self, node_ids: Sequence[NodeId], t_milestone: float,
                  config: LocaliserConfig = LocaliserConfig(), *,
-                 expected: Sequence[NodeId] = (), t_expected: Optional[float] = None):
+                 expected: Sequence[NodeId] = (), t_expected: Optional[float] = None,
+                 neighbourhoods: Optional[Mapping[NodeId, frozenset]] = None,
+                 t_floor: Optional[float] = None):
         """``expected`` / ``t_expected``: nodes where the robot is likely to be (a re-localisation:
         the stretch of the plan it was driving) are accepted when they are the best node of the
         whole row above the lower ``t_expected``; any other node needs ``t_milestone``. Under
         other lighting than the mapping run no view may pass ``t_milestone`` at all, while the
-        best match near the last known place is still the right answer."""
+        best match near the last known place is still the right answer.
+
+        ``neighbourhoods``: node -> the nodes within ``config.neighbourhood_hops`` arcs of it
+        (itself included); given, every acceptance also needs ``config.min_margin`` over the
+        best node outside the neighbourhood. ``t_floor``: the least score a second-look
+        candidate needs (default ``t_expected``)."""
         if len(node_ids) == 0:
             raise LocalisationError("the map has no nodes to localise against")
         self.node_ids = plain_node_ids(node_ids)
@@ -169,18 +181,45 @@ class InitialLocaliser:
         self._candidate: Optional[NodeId] = None
         self._streak = 0
         self._final: Optional[LocaliserStep] = None
+        self._column = {n: j for j, n in enumerate(self.node_ids)}
+        self._neighbourhoods = neighbourhoods
+        self.t_floor = float(self.t_expected if t_floor is None else t_floor)
+        # the first turn's views: (node, score) of ticks that could be second-look candidates
+        self._previous: Optional[tuple] = None
+        self._best_view: Optional[tuple] = None    # the first turn's best candidate (node, score)
+        self._look: Optional[tuple] = None         # (node, score) of the second look's target
+        self._look_start = 0.0
 
     @property
     def done(self) -> bool:
         return self._final is not None
 
+    def margin(self, row: np.ndarray, node: NodeId) -> float:
+        """How much ``node`` beats the best node outside its neighbourhood (inf without
+        neighbourhoods or when every node is a neighbour)."""
+        if self._neighbourhoods is None:
+            return math.inf
+        near = self._neighbourhoods.get(node, frozenset((node,)))
+        others = [row[j] for n, j in self._column.items() if n not in near]
+        return float(row[self._column[node]] - max(others)) if others else math.inf
+
     def tick(self, similarities: np.ndarray, heading_rad: Optional[float] = None) -> LocaliserStep:
         """One localisation tick: the current view's similarity to every node, and the heading."""
         if self._final is not None:
             return self._final
-        best = localise(similarities, self.node_ids, self.t_milestone)
+        row = similarity_row(similarities, len(self.node_ids))
+        best = localise(row, self.node_ids, self.t_milestone)
+        margin = self.margin(row, best.best_node)
+        distinct = margin >= self.config.min_margin
         if not best.accepted and best.best_node in self.expected and best.best_score > self.t_expected:
             best = Localisation(best.best_node, best.best_score, True, self.t_expected)
+        if best.accepted and not distinct:
+            best = Localisation(best.best_node, best.best_score, False, best.t_milestone)
+        if self._look is not None and not best.accepted and distinct:
+            node, score = self._look          # the second look: the best view of the first turn again
+            near = self._neighbourhoods.get(node, frozenset((node,))) if self._neighbourhoods else {node}
+            if best.best_node in near and best.best_score >= score - self.config.second_look_tolerance:
+                best = Localisation(best.best_node, best.best_score, True, score - self.config.second_look_tolerance)
         turned = self._turn.update(heading_rad)
         self._ticks += 1
 
@@ -188,21 +227,40 @@ class InitialLocaliser:
             self._streak = self._streak + 1 if best.best_node == self._candidate else 1
             self._candidate = best.best_node
             if self._streak >= self.config.confirm_ticks:
+                how = "" if self._look is None else f" (second look at the best view of a full turn, node {self._look[0]!r})"
                 return self._finish(LocaliserStatus.LOCALISED, best.best_node, best, turned,
                                     f"localised at node {best.best_node!r}: {best.describe()}, "
-                                    f"{self._streak} ticks in a row")
+                                    f"{self._streak} ticks in a row{how}")
             return LocaliserStep(LocaliserStatus.CONFIRMING, Action.NONE, None, best, turned,
                                  self._ticks, f"confirming node {best.best_node!r} "
                                  f"({self._streak}/{self.config.confirm_ticks}): {best.describe()}")
         self._candidate, self._streak = None, 0
-        if turned >= self.config.full_turn_rad or self._ticks >= self.config.max_search_ticks:
+        if self._look is None and distinct and best.best_score > self.t_floor:
+            # a second-look candidate needs the same node best on two ticks in a row
+            if self._previous is not None and self._previous[0] == best.best_node:
+                score = min(self._previous[1], best.best_score)
+                if self._best_view is None or score > self._best_view[1]:
+                    self._best_view = (best.best_node, score)
+            self._previous = (best.best_node, best.best_score)
+        else:
+            self._previous = None
+        full = self.config.full_turn_rad
+        if self._look is None and turned >= full and self.config.second_look and self._best_view is not None:
+            self._look, self._look_start = self._best_view, turned
+            return LocaliserStep(LocaliserStatus.ROTATING, Action.SEARCH_ROTATE, None, best, turned, self._ticks,
+                                 f"no view passed in a full turn; turning on to the best one: node "
+                                 f"{self._look[0]!r} at {self._look[1]:.3f}")
+        limit = full if self._look is None else self._look_start + full
+        if turned >= limit or self._ticks >= self.config.max_search_ticks * (1 if self._look is None else 2):
             spent = (f"a full counter-clockwise turn ({math.degrees(turned):.0f} deg)"
-                     if turned >= self.config.full_turn_rad else f"{self._ticks} search ticks")
+                     if turned >= limit else f"{self._ticks} search ticks")
+            second = "" if self._look is None else f" (nor the best view of the first turn again, node {self._look[0]!r})"
             return self._finish(LocaliserStatus.FAILED, None, best, turned,
                                 f"the robot cannot place itself: after {spent} no view matched a "
-                                f"node; last {best.describe()}")
+                                f"node{second}; last {best.describe()}")
         return LocaliserStep(LocaliserStatus.ROTATING, Action.SEARCH_ROTATE, None, best, turned,
-                             self._ticks, f"rotating counter-clockwise: {best.describe()}")
+                             self._ticks, f"rotating counter-clockwise: {best.describe()}"
+                             + ("" if distinct else f" (ambiguous: margin {margin:.3f} < {self.config.min_margin})"))
 
     def _finish(self, status: LocaliserStatus, node: Optional[NodeId], best: Localisation,
                 turned: float, reason: str) -> LocaliserStep:

@@ -26,6 +26,10 @@ States (:class:`NavState`):
   LOCALISING, but only nodes from which the goal is reachable count, and the stretch of the
   old plan around the last node is accepted as the best of the map above ``t_lost`` (other
   nodes need ``t_milestone``); then a new plan from the node found (``relocalisations``).
+* (learned policy) with ``policy`` passed to :meth:`Navigator.tick`, the action while
+  NAVIGATING comes from ``policy(target_node)`` instead of the voter (the SPTM-style baseline:
+  same localisation, planning and node switching, a classifier picks the action); there is no
+  weak vote and no search turn then, the supervisor's LOST still re-localises.
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero.
 * FAILED (final): cannot place itself, goal unreachable, or too many re-localisations;
   ``reason`` says which; velocity zero.
@@ -54,6 +58,8 @@ from controllers.voter import Third, ThirdScores, TwoCycleVoter, VoteKind, VoteR
 
 NodeId = Hashable
 ThirdsInput = Union[Callable[[NodeId], Sequence[float]], np.ndarray, None]
+#: A learned action policy for this tick: target node -> action (see the module docstring).
+PolicyInput = Optional[Callable[[NodeId], "Action"]]
 
 
 #: The action while no third passes t_limited_control (a weak vote, see blind_forward_ticks).
@@ -132,6 +138,10 @@ class Navigator:
         self.filter = SimilarityFilter(len(self.node_ids), config.filter)
         self.voter = TwoCycleVoter(config.thresholds.t_limited_control,
                                    hold_executed=config.hold_action_between_votes)
+        undirected = graph.to_undirected(as_view=True)
+        hops = config.localiser.neighbourhood_hops
+        self._neighbourhoods = {n: frozenset(nx.single_source_shortest_path_length(undirected, n, cutoff=hops))
+                                for n in self.node_ids}
         self._state = NavState.LOCALISING
         self._localiser = self._new_localiser()
         self._supervisor: Optional[NodeSwitchSupervisor] = None
@@ -185,7 +195,7 @@ class Navigator:
 
     def tick(self, similarities: np.ndarray, thirds: ThirdsInput = None,
              heading_rad: Optional[float] = None,
-             thirds_contrast: Optional[np.ndarray] = None) -> NavigationStep:
+             thirds_contrast: Optional[np.ndarray] = None, policy: PolicyInput = None) -> NavigationStep:
         """One control tick.
 
         ``similarities``: the current full view's cosine similarity to every node (column order
@@ -194,6 +204,8 @@ class Navigator:
         or None when the base has neither. ``thirds_contrast``: optional ``(N, 3)`` contrast of
         the thirds against all nodes (:func:`controllers.voter.contrast_thirds`); when given, a
         third votes when its contrast, not its cosine, exceeds ``t_limited_control``.
+        ``policy``: optional ``policy(target_node) -> Action`` for this tick's view; when given it
+        replaces the voter while navigating (a learned baseline; ``thirds`` are not needed then).
         """
         try:
             row = similarity_row(similarities, len(self.node_ids), "similarities")
@@ -205,14 +217,15 @@ class Navigator:
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
         self._contrast = thirds_contrast
-        return self._navigate_tick(row, thirds, heading_rad)
+        return self._navigate_tick(row, thirds, heading_rad, policy)
 
     # -- localisation ---------------------------------------------------------------------
 
     def _new_localiser(self, expected: Sequence[NodeId] = ()) -> InitialLocaliser:
         return InitialLocaliser(self.node_ids, self.config.thresholds.t_milestone,
                                 self.config.localiser, expected=expected,
-                                t_expected=self.config.thresholds.t_lost)
+                                t_expected=self.config.thresholds.t_lost,
+                                neighbourhoods=self._neighbourhoods, t_floor=self.config.thresholds.t_lost)
 
     def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         self.filter.update(row)  # keep the filter warm for the supervisor that follows
@@ -266,7 +279,7 @@ class Navigator:
     # -- navigation -----------------------------------------------------------------------
 
     def _navigate_tick(self, row: np.ndarray, thirds: ThirdsInput,
-                       heading_rad: Optional[float]) -> NavigationStep:
+                       heading_rad: Optional[float], policy: PolicyInput = None) -> NavigationStep:
         decision = self._supervisor.tick(row)
         if decision.confirmed_node is not None:
             self._remember(decision.confirmed_node)
@@ -280,6 +293,12 @@ class Navigator:
             return self._final
         if decision.state is SupervisorState.LOST:
             return self._relocalise(decision.reason, decision)
+        if policy is not None:
+            action = policy(decision.target_node)
+            if not isinstance(action, Action) or action in (Action.STOP, Action.SEARCH_ROTATE):
+                raise NavigationInputError(f"the action policy returned {action!r} for node "
+                                           f"{decision.target_node!r}; expected a driving Action")
+            return self._step(action, decision, reason=f"{decision.reason}; policy: {action.value}")
 
         scores = self._thirds_for(decision.target_node, thirds)
         gate = None   # what must exceed t_limited_control (None: the scores themselves)

@@ -40,13 +40,14 @@ import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Optional, Sequence, Union
+from typing import Callable, Optional, Protocol, Sequence, Union
 
 import cv2
 import numpy as np
 
 from controllers.config import NavigationConfig, Thresholds
 from controllers.localisation import GoalNotLocalisedError, Localisation, localise_goal_image
+from controllers.actions import Action
 from controllers.navigator import NavigationStep, Navigator, NavState
 from controllers.planner import UnknownNodeError, UnreachableGoalError
 from controllers.voter import contrast_thirds
@@ -56,7 +57,7 @@ from robot.descriptors.base import Descriptor, DescriptorError
 from robot.hal import HalError, RobotBase, SensorFrame, VelocityCommand
 
 __all__ = [
-    "DescriptorMismatchError", "EpisodeConfig", "EpisodeEnd", "EpisodeOutcome", "GoalImageError",
+    "ActionPolicy", "DescriptorMismatchError", "EpisodeConfig", "EpisodeEnd", "EpisodeOutcome", "GoalImageError",
     "GoalNotLocalisedError", "GoalSpec", "ResolvedGoal", "StepRecord", "StepTiming",
     "UnknownNodeError", "UnreachableGoalError", "attach_descriptor", "derive_thresholds",
     "parse_goal", "read_goal_image", "resolve_goal", "run_episode", "step_budget",
@@ -152,8 +153,8 @@ def attach_descriptor(loaded_map: LoadedMap, descriptor: Descriptor) -> Descript
 
 
 #: Fractions of the band [T_add_new_node, self_similarity] (see controllers.config.Thresholds.from_map).
-MILESTONE_FRACTION = 0.35
-CHANGE_FRACTION = 0.25
+MILESTONE_FRACTION = 0.25
+CHANGE_FRACTION = 0.15
 LOST_FRACTION = 0.1
 
 
@@ -344,6 +345,19 @@ class EpisodeOutcome:
 Observer = Callable[[StepRecord], Optional[str]]
 
 
+class ActionPolicy(Protocol):
+    """A learned action chooser that replaces the two-cycle voter (the SPTM-style baseline).
+
+    Every step the loop hands it the camera frame; it returns ``choose(target_node) -> Action``
+    for that frame (the navigator asks for at most one target per tick). Localisation,
+    planning and node switching stay the navigator's.
+    """
+
+    name: str
+
+    def for_frame(self, rgb: np.ndarray) -> Callable[[int], Action]: ...
+
+
 class _Heading:
     """Yaw for the navigator's turn meter: odometry yaw, else the integrated IMU rate, else None."""
 
@@ -374,7 +388,8 @@ def _plain(nodes: Sequence) -> tuple[int, ...]:
 
 def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_node: int,
                 config: NavigationConfig, max_steps: int,
-                observer: Optional[Observer] = None, *, thirds_contrast: bool = True) -> EpisodeOutcome:
+                observer: Optional[Observer] = None, *, thirds_contrast: bool = True,
+                action_policy: Optional[ActionPolicy] = None) -> EpisodeOutcome:
     """Drive the connected ``base`` to ``goal_node`` of ``topomap``; see the module docstring.
 
     ``descriptor`` must be the map's (see :func:`attach_descriptor`); ``config.thresholds`` are
@@ -382,6 +397,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     budget (control ticks). ``observer(record)`` is called after every step; returning a string
     ends the episode as ABORTED with that reason. ``thirds_contrast``: the voter gets the thirds'
     contrast against all nodes (:func:`controllers.voter.contrast_thirds`) instead of raw cosines.
+    ``action_policy``: a learned policy that picks the actions instead of the voter (its time
+    counts as ``describe_ms``).
 
     Raises :class:`UnreachableGoalError` when the robot localised at a node from which no arc
     chain leads to the goal, :class:`HalError` when the base gives no camera image; the base is
@@ -415,6 +432,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             t0 = time.perf_counter()
             views = np.asarray(descriptor.describe_thirds([frame.rgb]), dtype=np.float32)[0]
             similarities = nodes @ views[0]
+            policy = action_policy.for_frame(frame.rgb) if action_policy is not None else None
             describe_ms = _ms(t0)
 
             t0 = time.perf_counter()
@@ -422,7 +440,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             thirds = nodes @ views[1:].T
             step = navigator.tick(similarities, thirds=thirds,
                                   thirds_contrast=contrast_thirds(thirds) if thirds_contrast else None,
-                                  heading_rad=heading.update(frame))
+                                  heading_rad=heading.update(frame), policy=policy)
             applied = base.apply(step.velocity)
             decide_ms = _ms(t0)
             if step.planned_path and (not plans or plans[-1] != _plain(step.planned_path)):

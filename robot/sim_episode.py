@@ -38,7 +38,7 @@ from maps.store import LoadedMap, load_map
 from robot.descriptors.base import Descriptor
 from robot.episode_metrics import SUCCESS_RADIUS_M, EpisodeMetrics, compute_metrics, format_summary
 from robot.hal import Pose2D
-from robot.navigation import (EpisodeConfig, EpisodeOutcome, ResolvedGoal, StepRecord, attach_descriptor,
+from robot.navigation import (ActionPolicy, EpisodeConfig, EpisodeOutcome, ResolvedGoal, StepRecord, attach_descriptor,
                               configure_thresholds, parse_goal, read_goal_image, resolve_goal, run_episode,
                               step_budget)
 from robot.navigation_pictures import NavigationVideo, draw_trace
@@ -125,6 +125,7 @@ class SimNavigationResult:
     goal: ResolvedGoal
     setup: dict
     summary: str                      # the human summary (format_summary)
+    true_poses: tuple[Pose2D, ...] = ()  # the true pose at every step, start and end included
 
 
 class _TruthRecorder:
@@ -176,7 +177,8 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
                        loaded_map: Optional[LoadedMap] = None,
                        shortest_length_m: Optional[float] = None,
                        on_setup: Optional[Callable[[dict], None]] = None,
-                       make_base: Optional[Callable[..., SimLimo]] = None) -> SimNavigationResult:
+                       make_base: Optional[Callable[..., SimLimo]] = None,
+                       action_policy: Optional[ActionPolicy] = None) -> SimNavigationResult:
     """Run one navigation episode in the simulator; see the module docstring.
 
     ``world``: a world name, path or spec. ``map_dir``: the map folder. ``descriptor``: the
@@ -191,6 +193,7 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
     goes to its goal, else unknown (SPL None). ``make_base(config, start, world, appearance_seed)``:
     the simulated base (default :class:`sim.hal.SimLimo`; :class:`sim.serial_twin.SerialTwinLimo`
     drives the same body through the serial backend); it must offer ``ground_truth``.
+    ``action_policy``: a learned policy choosing the actions instead of the voter (the baseline).
 
     Raises: ``maps.graph.MapError`` (bad map folder), :class:`robot.navigation.DescriptorMismatchError`,
     :class:`StartError`, ``WorldError``, :class:`robot.navigation.GoalImageError`,
@@ -255,13 +258,15 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
                 "sim_seed": sim_config.seed, "max_steps": budget, "success_radius_m": SUCCESS_RADIUS_M,
                 "thresholds_from_map": episode.thresholds_from_map,
                 "descriptor": loaded.identity.backend,
+                "method": "voter" if action_policy is None else action_policy.name,
             }
             if on_setup is not None:
                 on_setup(setup)
             collisions_before = truth.collision_count()
             recorder = _TruthRecorder(base, video, bar)
             outcome = run_episode(base, loaded.topomap, descriptor, resolved.node, nav_config, budget,
-                                  observer=recorder, thirds_contrast=episode.thirds_contrast)
+                                  observer=recorder, thirds_contrast=episode.thirds_contrast,
+                                  action_policy=action_policy)
             collisions = truth.collision_count() - collisions_before
             toppled = truth.toppled()
     finally:
@@ -281,4 +286,5 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
                    start=start_pose, goal=goal_pose, goal_node=resolved.node,
                    title=f"{spec.name} {route or ''}: {verdict}{dist}").save_png(trace_png)
     return SimNavigationResult(metrics=metrics, outcome=outcome, start_pose=start_pose, goal_pose=goal_pose,
-                               goal=resolved, setup=setup, summary=summary)
+                               goal=resolved, setup=setup, summary=summary,
+                               true_poses=tuple(recorder.poses))

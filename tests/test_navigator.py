@@ -324,3 +324,61 @@ def test_relocalisation_ignores_nodes_from_which_the_goal_cannot_be_reached():
     for _ in range(40):
         step = nav.tick(np.array([0.1, 0.1, 0.2, 0.95]), thirds=thirds, heading_rad=0.0)
     assert step.planned_path[0] == 3 and step.planned_path[-1] == 1
+
+
+def _expert_policy(places: SyntheticPlaces, pose_of, poses):
+    """An action policy that steers towards the target node's true position (a stand-in for
+    the learned baseline: what matters here is that its actions are the ones driven)."""
+    def choose(node):
+        pose = pose_of()
+        target = poses[node]
+        bearing = math.atan2(target.y_m - pose.y_m, target.x_m - pose.x_m) - pose.yaw_rad
+        bearing = math.atan2(math.sin(bearing), math.cos(bearing))
+        if bearing > 0.3:
+            return Action.LEFT
+        if bearing < -0.3:
+            return Action.RIGHT
+        return Action.FORWARD
+    return choose
+
+
+def test_a_learned_policy_replaces_the_voter_while_navigating(loop):
+    graph, poses = loop
+    places = SyntheticPlaces(poses, seed=1)
+    nav = Navigator(graph, places.node_ids, 14, CONFIG)
+    pose = offset(poses[0], forward_m=-0.2, left_m=0.1, yaw_rad=0.1)
+    asked = []
+    current = [pose]
+    expert = _expert_policy(places, lambda: current[0], poses)
+
+    def policy(node):
+        asked.append(node)
+        return expert(node)
+
+    steps = []
+    for _ in range(2000):
+        current[0] = pose
+        step = nav.tick(places.similarities(pose), thirds=None, heading_rad=pose.yaw_rad, policy=policy)
+        steps.append(step)
+        if step.finished:
+            break
+        pose = drive(pose, step.velocity, DT_S)
+    last = steps[-1]
+    assert last.state is NavState.ARRIVED
+    assert pose.distance_to(poses[14]) < 0.7
+    navigating = [s for s in steps if s.state is NavState.NAVIGATING and s.supervisor is not None
+                  and not s.finished]
+    # every navigating tick asked the policy about its target, and drove the policy's action
+    assert len(asked) == len(navigating) > 50
+    assert [s.target_node for s in navigating] == asked
+    assert all(s.vote is None and "policy" in s.reason for s in navigating)
+
+
+def test_a_policy_returning_a_non_driving_action_is_refused(loop):
+    graph, poses = loop
+    places = SyntheticPlaces(poses, seed=1)
+    nav = Navigator(graph, places.node_ids, 14, CONFIG)
+    pose = poses[0]
+    with pytest.raises(NavigationInputError, match="action policy returned"):
+        for _ in range(50):
+            nav.tick(places.similarities(pose), heading_rad=pose.yaw_rad, policy=lambda node: Action.STOP)

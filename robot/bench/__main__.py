@@ -14,6 +14,9 @@ import sys
 COMMANDS = {
     "sim": ("robot.bench.sim", "time one control step of the simulated Limo: physics and render"),
     "vpr": ("robot.bench.vpr", "place recognition recall@1/@5 of each descriptor backend"),
+    "perf": ("robot.bench.perf", "speed and size: descriptor, control step split, mapping fps, bytes/node, memory"),
+    "baseline": ("robot.bench.baseline", "train the SPTM-style learned action baseline from expert drives"),
+    "paper": ("robot.bench.paper", "the paper's table: SR/SPL per route for our method and the baseline"),
 }
 
 

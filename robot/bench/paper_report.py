@@ -1,0 +1,283 @@
+"""The paper harness's outputs: results.json, timings.json, results.md and the plots.
+
+``results.json`` holds only what the seeds determine (metrics, trial conditions, trajectories),
+so a serial run and a ``--workers N`` run of the same seeds write the same file; wall-clock
+numbers go to ``timings.json`` and the timing section of ``results.md``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+#: The paper's success rates (Table "Comparison of Success Rates"), keyed by our routes.
+PAPER_COLUMNS = {("hospital", "easy"): "Easy 10 m", ("hospital", "moderate"): "Moderate 20 m",
+                 ("hospital", "hard"): "Hard 35 m", ("office", "main"): "Office 40 m"}
+PAPER_SR = {
+    "ours": {"Easy 10 m": 1.00, "Moderate 20 m": 0.92, "Hard 35 m": 0.86, "Office 40 m": 1.00, "Average": 0.95},
+    "sptm": {"Easy 10 m": 1.00, "Moderate 20 m": 0.64, "Hard 35 m": 0.47, "Office 40 m": 0.25, "Average": 0.59},
+}
+METHOD_LABELS = {"ours": "Ours (AnyLoc-style VLAD + two-cycle voter)",
+                 "sptm": "SPTM-style baseline (learned action head)"}
+PAPER_LABELS = {"ours": "Paper: Ours", "sptm": "Paper: ResNet+AnyLoc"}
+COLORS = {"ours": (0.12, 0.47, 0.71), "sptm": (0.85, 0.37, 0.01)}
+
+
+def _write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+    return path
+
+
+def summarise_episodes(episodes: Sequence[dict]) -> dict:
+    """SR (1.0 m, 0.5 m), mean SPL, mean final distance, re-localisations and collisions."""
+    n = len(episodes)
+    if n == 0:
+        return {"trials": 0}
+    m = [e["metrics"] for e in episodes]
+    spl = [x["spl"] if x["spl"] is not None else 0.0 for x in m]
+    finals = [x["final_distance_m"] for x in m if x["final_distance_m"] is not None]
+    return {"trials": n, "success_rate": round(sum(x["success"] for x in m) / n, 4),
+            "success_rate_0_5m": round(sum(x["success_0_5m"] for x in m) / n, 4),
+            "spl": round(float(np.mean(spl)), 4),
+            "mean_final_distance_m": round(float(np.mean(finals)), 3) if finals else None,
+            "mean_relocalisations": round(float(np.mean([x["relocalisations"] for x in m])), 3),
+            "collisions": int(sum(x["collisions"] or 0 for x in m)),
+            "failures": [e["trial"]["trial"] for e in episodes if not e["metrics"]["success"]]}
+
+
+def _route_id(e: dict) -> tuple[str, str]:
+    return Path(e["trial"]["world"]).stem, e["trial"]["route"]
+
+
+def _column(world: str, route: str) -> str:
+    return PAPER_COLUMNS.get((world, route), f"{world} {route}")
+
+
+def _map_info(map_dir: Path) -> dict:
+    manifest = json.loads((Path(map_dir) / "manifest.json").read_text(encoding="utf-8"))
+    extra = manifest.get("extra", {})
+    return {"dir": str(map_dir), "nodes": int(extra.get("nodes", len(manifest.get("nodes", [])))),
+            "mean_arc_length_m": None if extra.get("mean_arc_length_m") is None
+            else round(float(extra["mean_arc_length_m"]), 3),
+            "loop_closures": len(extra.get("loop_closures", []))}
+
+
+def _relative_paths(trial: dict, out: Path) -> dict:
+    """The trial with its map and trace paths relative to ``out`` (results.json travels)."""
+    fixed = dict(trial)
+    for key in ("map_dir", "trace_png", "baseline_path"):
+        if fixed.get(key):
+            try:
+                fixed[key] = str(Path(fixed[key]).resolve().relative_to(out.resolve()))
+            except ValueError:
+                pass
+    return fixed
+
+
+def _cell(s: dict) -> str:
+    return f"{s['success_rate']:.2f} ({s['spl']:.2f})"
+
+
+def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, specs: dict, maps: dict,
+                 levels: Sequence[float], default_sparsity: float, sparsity_route: Optional[str],
+                 sparsity_trials: int, command: str, seed: int) -> dict:
+    """Write every output; returns ``{"table": markdown table, "files": [paths]}``."""
+    out = Path(out)
+    routes: list[tuple[str, str]] = []
+    for e in main:
+        if _route_id(e) not in routes:
+            routes.append(_route_id(e))
+    methods = [m for m in ("ours", "sptm") if any(e["trial"]["method"] == m for e in main)]
+    summary = {f"{w}:{r}": {m: summarise_episodes([e for e in main if _route_id(e) == (w, r)
+                                                    and e["trial"]["method"] == m]) for m in methods}
+               for w, r in routes}
+
+    # the sparsity study: the study's own episodes plus, for the default level, the main table's
+    sparsity = {}
+    if sparsity_route is not None:
+        s_world, s_route = sparsity_route.rsplit(":", 1)
+        for level in levels:
+            eps = [e for e in study if e["trial"]["sparsity"] == level]
+            if not eps and level == default_sparsity:
+                eps = [e for e in main if _route_id(e) == (Path(s_world).stem, s_route)
+                       and e["trial"]["method"] == "ours"][:sparsity_trials]
+            if eps:
+                info = _map_info(Path(eps[0]["trial"]["map_dir"]))
+                info["dir"] = _relative_paths({"map_dir": info["dir"]}, out)["map_dir"]
+                sparsity[f"{level:g}"] = {"map": info,
+                                          **summarise_episodes(eps)}
+
+    deterministic = [{"trial": _relative_paths(e["trial"], out),
+                      **{k: e[k] for k in ("metrics", "goal_node", "trajectory")}} for e in [*main, *study]]
+    results = {"command": command, "seed": seed, "success_radius_m": 1.0,
+               "maps": {w: {**_map_info(Path(d)), "dir": _relative_paths({"map_dir": str(d)}, out)["map_dir"]}
+                        for w, d in maps.items()},
+               "summary": summary, "sparsity_route": sparsity_route, "sparsity": sparsity,
+               "episodes": deterministic}
+    files = [_write(out / "results.json", json.dumps(results, indent=2) + "\n")]
+    timings = {e["trial"]["world"] + "/" + e["trial"]["route"] + "/" + e["trial"]["method"]
+               + ("" if e["trial"]["sparsity"] is None else f"@{e['trial']['sparsity']:g}")
+               + f"/{e['trial']['trial']}": e["timing"] for e in [*main, *study]}
+    files.append(_write(out / "timings.json", json.dumps(timings, indent=2) + "\n"))
+
+    table = _paper_table(routes, methods, summary)
+    md = _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route,
+                   results["maps"], [*main, *study], out)
+    files.append(_write(out / "results.md", md))
+    files += _plots(out, routes, methods, summary, main, specs, sparsity)
+    return {"table": table, "files": files}
+
+
+def _paper_table(routes, methods, summary) -> str:
+    cols = [_column(w, r) for w, r in routes]
+    lines = ["| Method | " + " | ".join(cols) + " | Average |", "|---" * (len(cols) + 2) + "|"]
+    for m in methods:
+        cells = [summary[f"{w}:{r}"][m] for w, r in routes]
+        avg_sr = np.mean([c["success_rate"] for c in cells])
+        avg_spl = np.mean([c["spl"] for c in cells])
+        lines.append(f"| {METHOD_LABELS[m]} | " + " | ".join(_cell(c) for c in cells)
+                     + f" | {avg_sr:.2f} ({avg_spl:.2f}) |")
+    for m in methods:
+        paper = PAPER_SR[m]
+        if any(c in paper for c in cols):
+            lines.append(f"| {PAPER_LABELS[m]} (SR only) | " + " | ".join(
+                f"{paper[c]:.2f}" if c in paper else "-" for c in cols) + f" | {paper['Average']:.2f} |")
+    return "\n".join(lines)
+
+
+def _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route, maps,
+              episodes, out: Path) -> str:
+    trials = max((s["trials"] for r in summary.values() for s in r.values()), default=0)
+    lines = ["# The paper's table in PyBullet", "",
+             f"Made by `{command}` ({trials} trials per route and method). Cells: success rate within "
+             "1.0 m (SPL). SPL divides by the route's shortest length from the trial's start (within the "
+             "route's corridor, corners cut: `sim/shortest_path.py`). Trials start at the route start "
+             "offset by up to 0.3 m and 15 deg, under appearance seeds 1, 2, ... (the maps: seed 0).", "",
+             table, "", "## Per route", "",
+             "| route | method | SR 1.0 m | SR 0.5 m | SPL | mean final distance (m) | mean re-localisations "
+             "| collisions | failed trials |", "|---|---|---|---|---|---|---|---|---|"]
+    for w, r in routes:
+        for m in methods:
+            s = summary[f"{w}:{r}"][m]
+            lines.append(f"| {w} {r} | {m} | {s['success_rate']:.2f} | {s['success_rate_0_5m']:.2f} | "
+                         f"{s['spl']:.2f} | {s['mean_final_distance_m']} | {s['mean_relocalisations']:.2f} | "
+                         f"{s['collisions']} | {', '.join(map(str, s['failures'])) or '-'} |")
+    lines += ["", "Maps (built from each world's walkthrough under appearance 0):", ""]
+    for w, info in maps.items():
+        lines.append(f"- {w}: {info['nodes']} nodes, mean arc {info['mean_arc_length_m']} m, "
+                     f"{info['loop_closures']} loop closure(s)")
+    failed = [e for e in main if not e["metrics"]["success"]]
+    if failed:
+        lines += ["", "## Failed episodes", "", "| episode | final distance (m) | end | reason |",
+                  "|---|---|---|---|"]
+        for e in failed:
+            t, m = e["trial"], e["metrics"]
+            lines.append(f"| {Path(t['world']).stem}/{t['route']}/{t['method']}/{t['trial']} "
+                         f"(appearance {t['appearance_seed']}) | {m['final_distance_m']} | {m['end']} | "
+                         f"{m['reason'][:160]} |")
+    if sparsity:
+        lines += ["", f"## Map sparsity ({sparsity_route}, our method)", "",
+                  "| sparsity | nodes | mean arc (m) | SR | SPL | mean re-localisations |", "|---|---|---|---|---|---|"]
+        for level, s in sparsity.items():
+            lines.append(f"| {level} | {s['map']['nodes']} | {s['map']['mean_arc_length_m']} | "
+                         f"{s['success_rate']:.2f} | {s['spl']:.2f} | {s['mean_relocalisations']:.2f} |")
+    timed = [e["timing"] for e in episodes if e["timing"]["ms_per_step"]["total_ms"] > 0]
+    if timed:
+        keys = ("read_ms", "describe_ms", "decide_ms", "tick_ms", "total_ms")
+        med = {k: float(np.median([t["ms_per_step"][k] for t in timed])) for k in keys}
+        lines += ["", "## Wall time (median over episodes of the mean per step)", "",
+                  f"read (render) {med['read_ms']:.0f} ms, describe {med['describe_ms']:.0f} ms, decide "
+                  f"{med['decide_ms']:.1f} ms, physics {med['tick_ms']:.0f} ms; total {med['total_ms']:.0f} ms "
+                  f"per 100 ms control period ({len(timed)} episodes; `timings.json`)."]
+    lines += ["", "Pictures: `sr.png`, `trajectories_<world>_<route>.png`"
+              + (", `sparsity.png`" if sparsity else "") + "; one trace per episode in `traces/`.", ""]
+    return "\n".join(lines)
+
+
+def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    files = []
+    cols = [_column(w, r) for w, r in routes]
+    fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(cols), 3.6))
+    width = 0.8 / max(1, len(methods))
+    for k, m in enumerate(methods):
+        x = np.arange(len(cols)) + (k - (len(methods) - 1) / 2) * width
+        sr = [summary[f"{w}:{r}"][m]["success_rate"] for w, r in routes]
+        ax.bar(x, sr, width * 0.9, color=COLORS[m], label=METHOD_LABELS[m])
+        paper = [PAPER_SR[m].get(c) for c in cols]
+        px = [xi for xi, p in zip(x, paper) if p is not None]
+        ax.scatter(px, [p for p in paper if p is not None], marker="_", s=400, color="black", zorder=3,
+                   label="paper" if k == 0 else None)
+    ax.set_xticks(np.arange(len(cols)), cols)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel("success rate (1.0 m)")
+    ax.legend(fontsize=7, loc="lower left")
+    ax.set_title("Success rate per route (black: the paper's number for the same method)", fontsize=9)
+    fig.tight_layout()
+    files.append(out / "sr.png")
+    fig.savefig(files[-1], dpi=120)
+    plt.close(fig)
+
+    from sim.topdown import render_topdown
+
+    for w, r in routes:
+        spec = next((s for name, s in specs.items() if Path(name).stem == w or s.name == w), None)
+        if spec is None:
+            continue
+        panels = []
+        for m in methods:
+            td = render_topdown(spec, appearance_seed=0, show_routes=False)
+            route = spec.routes.evaluation[r]
+            td.draw_polyline([route.start[:2], *route.waypoints, route.goal[:2]], (160, 160, 160), 6)
+            ok = 0
+            for e in main:
+                if _route_id(e) != (w, r) or e["trial"]["method"] != m:
+                    continue
+                good = e["metrics"]["success"]
+                ok += good
+                td.draw_polyline(e["trajectory"], (40, 160, 60) if good else (220, 40, 40), 2)
+            td.draw_marker(*route.goal[:2], (0, 0, 0), label="goal", shape="square")
+            panels.append((m, td.image, ok))
+        fig, axes = plt.subplots(len(panels), 1, figsize=(9, 4.2 * len(panels)), squeeze=False)
+        for ax, (m, img, ok) in zip(axes[:, 0], panels):
+            n = summary[f"{w}:{r}"][m]["trials"]
+            ax.imshow(img)
+            ax.set_axis_off()
+            ax.set_title(f"{w} {r}: {METHOD_LABELS[m]}: {ok}/{n} successes (green), failures red", fontsize=9)
+        fig.tight_layout()
+        files.append(out / f"trajectories_{w}_{r}.png")
+        fig.savefig(files[-1], dpi=110)
+        plt.close(fig)
+
+    if sparsity:
+        levels = list(sparsity)
+        fig, ax = plt.subplots(figsize=(4.8, 3.4))
+        x = [float(v) for v in levels]
+        ax.plot(x, [sparsity[v]["success_rate"] for v in levels], "o-", color=COLORS["ours"], label="SR")
+        ax.set_xlabel("map sparsity (calibrated mapping)")
+        ax.set_ylabel("success rate")
+        ax.set_ylim(0, 1.05)
+        ax2 = ax.twinx()
+        ax2.plot(x, [sparsity[v]["mean_relocalisations"] for v in levels], "s--", color="grey",
+                 label="re-localisations")
+        ax2.set_ylabel("mean re-localisations per episode")
+        for v in levels:
+            ax.annotate(f"{sparsity[v]['map']['nodes']} nodes", (float(v), sparsity[v]["success_rate"]),
+                        textcoords="offset points", xytext=(0, -14), ha="center", fontsize=7)
+        fig.legend(fontsize=7, loc="lower right")
+        fig.tight_layout()
+        files.append(out / "sparsity.png")
+        fig.savefig(files[-1], dpi=120)
+        plt.close(fig)
+    return files

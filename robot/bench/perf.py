@@ -1,0 +1,524 @@
+"""``python -m robot.bench perf``: speed and size of the stack on this machine.
+
+Five numbers a Limo owner needs before trusting the 10 Hz control loop to a small computer:
+
+1. **descriptor time per frame**: ``describe_thirds`` (the full view and its Left / Middle /
+   Right thirds, what one control step needs) of one 320x240 frame at batch 1, with the
+   configured backend and a vocabulary fitted on a few frames of the drive; median and p90 over
+   ``--repeats`` calls after a warm-up (``describe`` of the full view alone beside it);
+2. **control step split**: ``--steps`` steps of a navigation episode on a map, from the route's
+   start toward its goal (``robot.sim_episode.run_sim_navigation``, the loop of
+   ``robot.run --mode navigate``; the goal is the image at the route's goal on a ``--map``, the
+   last node on the map built here from the drive, which ends at the route's goal): render (``read``) / describe / decide / physics (``tick``)
+   per step, median, mean and p90, and the episode's wall time per step, which the stages
+   should add up to;
+3. **mapping throughput from a video**: the route is driven with the scripted teleoperator and
+   its camera frames written as an MP4 at the recording rate (or ``--video`` is used), then
+   mapped ``--map-repeats`` times with the pipeline of ``robot.run --mode map --video`` (fresh
+   descriptor, vocabulary fit, describe, build, save, pictures); frames per second of the whole
+   pipeline, median over the runs, and the map's node count;
+4. **map bytes per node**: the map folder's size on disk (every file in it, pictures included)
+   divided by its nodes, with ``maps.store.map_size``'s split (the part that grows per node:
+   manifest, descriptors, thumbnails; the fixed vocabulary state and walkthrough log);
+5. **peak memory**: the process's peak resident set (``ru_maxrss``) after each section.
+
+The episode runs on ``--map`` when given, else on the map just built from the video. Thread
+pools are limited as in :mod:`robot.threads` (one OpenBLAS and one OpenCV thread; ``--threads``
+torch threads); the header says how it ran. ``--json PATH`` writes every number.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import math
+import os
+import resource
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Optional, Sequence
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+EXIT_BAD_INPUT = 2
+EXIT_FAILED = 1
+TIMING_SIZE = (320, 240)        # the Limo camera's frame (width, height) in px
+FIT_FRAMES = 8                  # "a few frames" for the timing vocabulary: 8 x 80 block-13 patches
+WARMUP_CALLS = 2                # the first calls load weights and warm torch's allocator
+DEFAULTS = {"repeats": 50, "steps": 200, "map_repeats": 3}
+QUICK = {"repeats": 10, "steps": 30, "map_repeats": 1}
+VIDEO_NAME = "drive.mp4"
+MAP_NAME = "map"
+
+
+class PerfInputError(ValueError):
+    """A bad option or input file for the perf command; the message names it."""
+
+
+# --------------------------------------------------------------------------------------------
+# Command line
+# --------------------------------------------------------------------------------------------
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.description = (
+        "Speed and size on this machine: describe_thirds per 320x240 frame at batch 1, the control step "
+        "split (render / describe / decide / physics) of a navigation episode, mapping throughput from a "
+        "video (frames/s), map bytes per node and peak memory. Medians over repeated runs.")
+    parser.add_argument("--world", default="hospital",
+                        help="world name from configs/worlds or a path to a world YAML (default hospital)")
+    parser.add_argument("--route", default=None, metavar="NAME",
+                        help="evaluation route driven for the video and navigated for the step split "
+                             "(default: the world's first easy route)")
+    parser.add_argument("--map", type=Path, default=None, metavar="DIR",
+                        help="navigate on this map folder (default: the map built from the video here)")
+    parser.add_argument("--goal", type=int, default=None, metavar="NODE",
+                        help="navigate to this node id of the map (default: the image at the route's goal on "
+                             "--map, the last node of the map built here, which is the drive's end)")
+    parser.add_argument("--video", type=Path, default=None, metavar="PATH",
+                        help="time mapping from this video instead of a drive rendered here")
+    parser.add_argument("--repeats", type=int, default=None, metavar="N",
+                        help=f"describe_thirds calls timed after {WARMUP_CALLS} warm-up calls "
+                             f"(default {DEFAULTS['repeats']}, --quick {QUICK['repeats']})")
+    parser.add_argument("--steps", type=int, default=None, metavar="N",
+                        help=f"control steps of the navigation episode (default {DEFAULTS['steps']}, "
+                             f"--quick {QUICK['steps']}; fewer when the robot arrives first)")
+    parser.add_argument("--map-repeats", type=int, default=None, metavar="N",
+                        help=f"times the video is mapped (default {DEFAULTS['map_repeats']}, "
+                             f"--quick {QUICK['map_repeats']})")
+    parser.add_argument("--quick", action="store_true",
+                        help="fewer repeats and steps (a smoke test; explicit --repeats/--steps/--map-repeats win)")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2, this CPU's cores)")
+    parser.add_argument("--appearance-seed", type=int, default=0,
+                        help="lighting and props of the world for the drive and the episode (default 0)")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="stack configuration YAML (default configs/default.yaml)")
+    parser.add_argument("--out", type=Path, default=None, metavar="DIR",
+                        help=f"keep the drive video ({VIDEO_NAME}) and the built map ({MAP_NAME}/) here "
+                             "(default: a temporary folder, removed afterwards)")
+    parser.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the numbers as JSON here")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+@dataclass(frozen=True)
+class PerfSettings:
+    """The validated options."""
+
+    repeats: int
+    steps: int
+    map_repeats: int
+    threads: int
+
+
+def settings_from(args: argparse.Namespace) -> PerfSettings:
+    """Counts resolved against the defaults (or --quick); bad values raise PerfInputError."""
+    base = QUICK if args.quick else DEFAULTS
+    values = {}
+    for name in ("repeats", "steps", "map_repeats"):
+        value = getattr(args, name)
+        value = base[name] if value is None else value
+        if value < 1:
+            raise PerfInputError(f"--{name.replace('_', '-')} must be >= 1, got {value}")
+        values[name] = value
+    if args.goal is not None and args.goal < 0:
+        raise PerfInputError(f"--goal must be a node id >= 0, got {args.goal}")
+    if args.threads < 1:
+        raise PerfInputError(f"--threads must be >= 1, got {args.threads}")
+    if args.video is not None and not args.video.is_file():
+        raise PerfInputError(f"--video {args.video}: no such file")
+    if args.map is not None and not args.map.is_dir():
+        raise PerfInputError(f"--map {args.map}: no such map folder")
+    return PerfSettings(threads=args.threads, **values)
+
+
+def _pick_route(world, name: Optional[str]) -> str:
+    routes = world.routes.evaluation
+    if not routes:
+        raise PerfInputError(f"--world {world.name}: the world has no evaluation routes to drive")
+    if name is None:
+        easy = [n for n, r in routes.items() if r.difficulty == "easy"]
+        return easy[0] if easy else next(iter(routes))
+    if name not in routes:
+        raise PerfInputError(f"--route {name!r}: world {world.name!r} has no such route "
+                             f"(routes: {', '.join(routes)})")
+    return name
+
+
+# --------------------------------------------------------------------------------------------
+# Statistics and memory
+# --------------------------------------------------------------------------------------------
+def summary_ms(values: Sequence[float]) -> dict:
+    """Median, p90, mean and fastest of a sample of milliseconds."""
+    a = np.asarray(values, dtype=float)
+    return {"median": float(np.median(a)), "p90": float(np.percentile(a, 90)), "mean": float(a.mean()),
+            "min": float(a.min()), "n": int(a.size)}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set of this process so far, MB (``ru_maxrss`` is in KiB on Linux, bytes on macOS)."""
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return peak / (1024.0 * 1024.0) if sys.platform == "darwin" else peak / 1024.0
+
+
+def time_calls_ms(fn: Callable[[], object], repeats: int, warmup: int = WARMUP_CALLS) -> list[float]:
+    """Wall milliseconds of ``repeats`` calls of ``fn`` after ``warmup`` untimed ones."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t0) * 1000.0)
+    return times
+
+
+# --------------------------------------------------------------------------------------------
+# 0. The drive: camera frames along the route, as an MP4
+# --------------------------------------------------------------------------------------------
+def drive_route(world, route_name: str, config, appearance_seed: int, progress: bool) -> list[np.ndarray]:
+    """RGB frames of the scripted teleoperator driving the route, one every
+    ``recording.every_n_ticks`` control ticks (the mapping recording's rate)."""
+    from robot.sim_episode import route_pose
+    from robot.walkthrough import DriveError
+    from sim.hal import SimLimo
+    from sim.teleop import WaypointTeleop
+
+    route = world.routes.evaluation[route_name]
+    teleop = WaypointTeleop(route.path, config.teleop)
+    period = config.sim.control_period_s
+    max_ticks = int(math.ceil(config.recording.time_budget_factor * teleop.length_m
+                              / config.teleop.cruise_v_mps / period)) + 100
+    frames: list[np.ndarray] = []
+    base = SimLimo(config.sim, start=route_pose(route.start), world=world, appearance_seed=appearance_seed)
+    with base, tqdm(total=max_ticks, unit="tick", desc=f"driving {route_name}", disable=not progress,
+                    leave=False, file=sys.stderr) as bar:
+        truth = base.ground_truth
+        for tick in range(max_ticks):
+            pose = truth.true_pose()
+            if teleop.done(pose):
+                break
+            if tick % config.recording.every_n_ticks == 0:
+                frames.append(base.read().rgb)
+            base.apply(teleop.command(pose))
+            base.tick()
+            bar.update(1)
+        else:
+            raise DriveError(f"the drive along route {route_name!r} of {world.name!r} did not finish within "
+                             f"{max_ticks} control ticks")
+        frames.append(base.read().rgb)
+    return frames
+
+
+def write_video(frames: Sequence[np.ndarray], path: Path, fps: float) -> Path:
+    """Write RGB ``frames`` as an MP4 (mp4v), as a phone video of the drive would be."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    if not writer.isOpened():
+        raise PerfInputError(f"{path}: OpenCV cannot write an MP4 (mp4v) here")
+    try:
+        for rgb in frames:
+            writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    finally:
+        writer.release()
+    return path
+
+
+def video_frames(path: Path, count: int) -> list[np.ndarray]:
+    """Up to ``count`` RGB frames spread over the video ``path`` (for timing and the vocabulary)."""
+    from robot.frame_sources import VideoSource
+
+    frames = [f.rgb for f in VideoSource(path)]
+    if not frames:
+        raise PerfInputError(f"--video {path}: no readable frames")
+    picks = np.unique(np.linspace(0, len(frames) - 1, num=min(count, len(frames))).round().astype(int))
+    return [frames[i] for i in picks]
+
+
+# --------------------------------------------------------------------------------------------
+# 1. Descriptor time per frame
+# --------------------------------------------------------------------------------------------
+def time_descriptor(config, frames: Sequence[np.ndarray], repeats: int) -> dict:
+    """describe_thirds (and describe) of one 320x240 frame at batch 1, ms; the vocabulary is
+    fitted on up to FIT_FRAMES of ``frames``; the timed calls cycle over the frames."""
+    from robot.descriptors.factory import make_descriptor
+
+    descriptor = make_descriptor(config.descriptor.backend, **config.descriptor.settings)
+    sized = [cv2.resize(f, TIMING_SIZE, interpolation=cv2.INTER_AREA) if f.shape[1::-1] != TIMING_SIZE else f
+             for f in frames]
+    fit = sized[:: max(1, len(sized) // FIT_FRAMES)][:FIT_FRAMES]
+    if descriptor.needs_fit:
+        descriptor.fit(fit)
+    frames_in_turn = itertools.cycle(sized)     # different frames, as a moving camera delivers
+
+    def next_frame() -> list[np.ndarray]:
+        return [next(frames_in_turn)]
+
+    thirds = time_calls_ms(lambda: descriptor.describe_thirds(next_frame()), repeats)
+    full = time_calls_ms(lambda: descriptor.describe(next_frame()), repeats)
+    return {"backend": descriptor.identity.backend, "dim": int(descriptor.identity.dim or 0),
+            "frame_px": list(TIMING_SIZE), "fit_frames": len(fit), "repeats": repeats,
+            "describe_thirds_ms": summary_ms(thirds), "describe_ms": summary_ms(full)}
+
+
+# --------------------------------------------------------------------------------------------
+# 2. Mapping throughput from a video
+# --------------------------------------------------------------------------------------------
+def time_mapping(video: Path, config, map_dirs: Sequence[Path], progress: bool) -> dict:
+    """Map ``video`` once per folder of ``map_dirs`` with the ``robot.run --mode map --video``
+    pipeline (a fresh descriptor each time, as the command builds one); frames per second."""
+    from robot.descriptors.factory import make_descriptor
+    from robot.frame_sources import VideoSource
+    from robot.map_building import build_map_from_frames
+
+    seconds, summary = [], {}
+    for map_dir in tqdm(map_dirs, desc="mapping the video", unit="run", disable=not progress, leave=False,
+                        file=sys.stderr):
+        t0 = time.perf_counter()
+        source = VideoSource(video)
+        descriptor = make_descriptor(config.descriptor.backend, **config.descriptor.settings)
+        built = build_map_from_frames(source, descriptor, config.mapping, map_dir, total=len(source),
+                                      fit_max_frames=config.descriptor.fit_max_frames,
+                                      source=source.description, progress=False)
+        seconds.append(time.perf_counter() - t0)
+        summary = built.summary
+    frames = int(summary["frames_read"])
+    fps = [frames / s for s in seconds]
+    return {"video": str(video), "frames": frames, "runs": len(seconds), "seconds": seconds,
+            "seconds_median": float(np.median(seconds)), "fps_median": float(np.median(fps)),
+            "fps_min": float(np.min(fps)), "nodes": int(summary["nodes"])}
+
+
+# --------------------------------------------------------------------------------------------
+# 3. Map bytes per node
+# --------------------------------------------------------------------------------------------
+def folder_bytes(folder: Path) -> int:
+    """Bytes of every file under ``folder`` (recursively)."""
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
+
+
+def map_bytes(map_dir: Path) -> dict:
+    """The map folder's size per node; ``growing_bytes_per_node`` is ``map_size``'s per-node part."""
+    from maps.store import map_size
+
+    size = map_size(map_dir)
+    total = folder_bytes(map_dir)
+    return {"map": str(map_dir), "nodes": size.n_nodes, "folder_bytes": total,
+            "bytes_per_node": total / size.n_nodes, "growing_bytes_per_node": float(size.per_node_bytes),
+            "descriptor_bytes": size.descriptor_bytes, "thumbnail_bytes": size.thumbnail_bytes,
+            "state_bytes": size.state_bytes, "walkthrough_bytes": size.walkthrough_bytes}
+
+
+# --------------------------------------------------------------------------------------------
+# 4. Control step split
+# --------------------------------------------------------------------------------------------
+STAGES = (("read_ms", "render (read)"), ("describe_ms", "describe"), ("decide_ms", "decide"),
+          ("tick_ms", "physics (tick)"))
+
+
+def last_node(map_dir: Path) -> int:
+    """The node of the map's last keyframe: the end of the drive the map was built from."""
+    from maps.store import load_map
+
+    return max(load_map(map_dir).topomap.nodes(), key=lambda n: n.keyframe_index).node_id
+
+
+def time_control_steps(world, map_dir: Path, config, route_name: str, steps: int, appearance_seed: int,
+                       progress: bool, goal_node: Optional[int] = None) -> dict:
+    """``steps`` steps of a navigation episode on ``map_dir`` from the route's start toward
+    ``goal_node`` (None: the image the camera sees at the route's goal, as ``robot.run --mode
+    navigate --route`` does); per-stage ms from ``EpisodeOutcome.timings``."""
+    from robot.descriptors.factory import make_descriptor
+    from robot.sim_episode import run_sim_navigation
+
+    descriptor = make_descriptor(config.descriptor.backend, **config.descriptor.settings)
+    result = run_sim_navigation(world, map_dir, descriptor, goal=goal_node, route=route_name,
+                                appearance_seed=appearance_seed, sim_config=config.sim,
+                                navigation=config.navigation, episode=config.episode, max_steps=steps,
+                                progress=progress)
+    outcome = result.outcome
+    timings = outcome.timings
+    if not timings:
+        raise PerfInputError(f"the episode on {map_dir} ran no control step ({outcome.reason})")
+    stages = {key: summary_ms([getattr(t, key) for t in timings]) for key, _ in STAGES}
+    goal = f"image at the goal of route {route_name}" if goal_node is None else f"node {goal_node}"
+    return {"map": str(map_dir), "route": route_name, "goal": goal, "steps": len(timings), "end": outcome.end.value,
+            "reason": outcome.reason, "stages": stages, "total_ms": summary_ms([t.total_ms for t in timings]),
+            "wall_ms_per_step": outcome.wall_time_s * 1000.0 / len(timings),
+            "control_period_ms": config.sim.control_period_s * 1000.0}
+
+
+# --------------------------------------------------------------------------------------------
+# The report
+# --------------------------------------------------------------------------------------------
+def format_report(report: dict) -> str:
+    """The readable table of :func:`run`'s report."""
+    d, m, s, c, mem = (report["descriptor"], report["mapping"], report["map_size"], report["control_step"],
+                       report["memory"])
+    rows: list[tuple[str, str, str]] = []
+    w, h = d["frame_px"]
+    for key, label in (("describe_thirds_ms", "describe_thirds"), ("describe_ms", "describe (full view)")):
+        t = d[key]
+        rows.append(("descriptor", f"{label} {w}x{h}, batch 1",
+                     f"{t['median']:.1f} ms median, {t['p90']:.1f} ms p90 ({t['n']} calls)"))
+    for key, label in STAGES:
+        t = c["stages"][key]
+        rows.append(("control step", label, f"{t['median']:.1f} ms median, {t['mean']:.1f} ms mean, "
+                                            f"{t['p90']:.1f} ms p90"))
+    t = c["total_ms"]
+    rows.append(("control step", "sum of stages", f"{t['median']:.1f} ms median, {t['mean']:.1f} ms mean "
+                                                  f"(period {c['control_period_ms']:.0f} ms)"))
+    rows.append(("control step", "episode wall / step",
+                 f"{c['wall_ms_per_step']:.1f} ms ({c['steps']} steps, ended: {c['end']})"))
+    rows.append(("mapping", "video -> map", f"{m['fps_median']:.1f} frames/s median ({m['frames']} frames, "
+                                            f"{m['seconds_median']:.1f} s, {m['runs']} runs)"))
+    rows.append(("mapping", "nodes of the video's map", f"{m['nodes']}"))
+    rows.append(("map size", "episode map folder / nodes", f"{s['bytes_per_node'] / 1024:.1f} KiB per node "
+                                               f"({s['folder_bytes'] / 1024:.0f} KiB / {s['nodes']} nodes)"))
+    rows.append(("map size", "growing part per node", f"{s['growing_bytes_per_node'] / 1024:.1f} KiB "
+                                                    "(manifest + descriptors + thumbnails)"))
+    for section, mb in mem["peak_rss_mb_after"].items():
+        rows.append(("memory", f"peak RSS after {section}", f"{mb:.0f} MB"))
+    widths = [max(len(r[i]) for r in rows + [("section", "quantity", "value")]) for i in range(2)]
+    lines = [f"{'section':<{widths[0]}}  {'quantity':<{widths[1]}}  value"]
+    body = [f"{a:<{widths[0]}}  {b:<{widths[1]}}  {v}" for a, b, v in rows]
+    return "\n".join([lines[0], "-" * max(len(line) for line in lines + body), *body])
+
+
+def _header(report: dict) -> list[str]:
+    r = report["run"]
+    lines = [f"world {r['world']}, route {r['route']} (appearance seed {r['appearance_seed']}); "
+             f"descriptor {report['descriptor']['backend']} (dim {report['descriptor']['dim']})",
+             f"threads: torch {r['torch_threads']}, OPENBLAS_NUM_THREADS={r['openblas_num_threads']}, "
+             f"OpenCV {r['cv2_threads']}",
+             f"video: {report['mapping']['video']} ({'given' if r['video_given'] else 'rendered drive'}); "
+             f"map for the episode: {report['control_step']['map']} ({'given' if r['map_given'] else 'built here'}), "
+             f"goal {report['control_step']['goal']}"]
+    return lines
+
+
+def run(args: argparse.Namespace, settings: PerfSettings, work: Path) -> dict:
+    """Every section of the report as a JSON-ready dict; files go under ``work``."""
+    import torch
+
+    from robot.settings import load_stack_config
+    from sim.world_spec import load_world
+
+    config = load_stack_config(args.config)
+    world = load_world(args.world)
+    route = _pick_route(world, args.route)
+    torch.set_num_threads(settings.threads)
+    progress = not args.quiet
+    started = time.perf_counter()
+    memory: dict[str, float] = {}
+
+    if args.video is not None:
+        video = args.video
+        frames = video_frames(video, 4 * FIT_FRAMES)
+    else:
+        frames = drive_route(world, route, config, args.appearance_seed, progress)
+        fps = 1.0 / (config.sim.control_period_s * config.recording.every_n_ticks)
+        video = write_video(frames, work / VIDEO_NAME, fps)
+    memory["drive"] = peak_rss_mb()
+
+    descriptor = time_descriptor(config, frames, settings.repeats)
+    del frames
+    memory["descriptor timing"] = peak_rss_mb()
+
+    map_dirs = [work / MAP_NAME] + [work / f"{MAP_NAME}.repeat{i}" for i in range(1, settings.map_repeats)]
+    mapping = time_mapping(video, config, map_dirs, progress)
+    for extra in map_dirs[1:]:
+        shutil.rmtree(extra, ignore_errors=True)
+    memory["mapping"] = peak_rss_mb()
+
+    # A given map is navigated to the image at the route's goal, like robot.run --mode navigate --route.
+    # The map built here covers the drive only, which may stop short of seeing the goal view;
+    # its last node is the drive's end, a goal it certainly has.
+    map_dir = args.map if args.map is not None else map_dirs[0]
+    goal_node = args.goal if args.goal is not None else (None if args.map is not None else last_node(map_dir))
+    size = map_bytes(map_dir)
+    control = time_control_steps(world, map_dir, config, route, settings.steps, args.appearance_seed, progress,
+                                 goal_node)
+    memory["control steps"] = peak_rss_mb()
+
+    return {
+        "command": "perf",
+        "run": {"world": world.name, "route": route, "appearance_seed": args.appearance_seed,
+                "torch_threads": torch.get_num_threads(),
+                "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset"),
+                "cv2_threads": cv2.getNumThreads(), "video_given": args.video is not None,
+                "map_given": args.map is not None, "repeats": settings.repeats, "steps": settings.steps,
+                "map_repeats": settings.map_repeats, "wall_s": time.perf_counter() - started},
+        "descriptor": descriptor,
+        "control_step": control,
+        "mapping": mapping,
+        "map_size": size,
+        "memory": {"peak_rss_mb": peak_rss_mb(), "peak_rss_mb_after": memory},
+    }
+
+
+def _input_errors() -> tuple[type[BaseException], ...]:
+    """Errors a user causes with options or files: exit 2."""
+    from controllers.planner import UnknownNodeError
+    from maps.graph import MapError
+    from robot.configfile import ConfigError
+    from robot.descriptors.base import DescriptorError
+    from robot.frame_sources import FrameSourceError
+    from robot.navigation import DescriptorMismatchError, GoalImageError
+    from robot.sim_episode import StartError
+
+    return (PerfInputError, ConfigError, MapError, DescriptorError, FrameSourceError, DescriptorMismatchError,
+            GoalImageError, StartError, UnknownNodeError)
+
+
+def _run_errors() -> tuple[type[BaseException], ...]:
+    """Errors of the runs themselves (a drive that cannot finish, a goal not recognised): exit 1."""
+    from controllers.localisation import GoalNotLocalisedError
+    from controllers.planner import UnreachableGoalError
+    from robot.hal import HalError
+    from robot.walkthrough import DriveError
+
+    return (DriveError, HalError, GoalNotLocalisedError, UnreachableGoalError)
+
+
+def main(args: argparse.Namespace) -> int:
+    from robot.threads import limit_helper_threads
+
+    limit_helper_threads()     # also when main() is called without the dispatcher
+    try:
+        settings = settings_from(args)
+    except PerfInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    work = args.out if args.out is not None else Path(tempfile.mkdtemp(prefix="robot-perf-"))
+    try:
+        work.mkdir(parents=True, exist_ok=True)
+        report = run(args, settings, work)
+    except _input_errors() as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except _run_errors() as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+    finally:
+        if args.out is None:
+            shutil.rmtree(work, ignore_errors=True)
+    if args.out is None:    # the temporary files are gone; say so rather than point at nothing
+        if args.video is None:
+            report["mapping"]["video"] = "(temporary, removed)"
+        if args.map is None:
+            report["control_step"]["map"] = report["map_size"]["map"] = "(temporary, removed)"
+    print("\n".join(_header(report)))
+    print()
+    print(format_report(report))
+    print(f"\nwall time {report['run']['wall_s']:.1f} s")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        print(f"wrote {args.json}")
+    return 0

@@ -1,0 +1,184 @@
+"""Evaluation trials: what one navigation episode of the paper harness is, and running it.
+
+A :class:`Trial` is plain data (it crosses process boundaries): world, route, method, map
+folder, trial number, the start pose (the route's start plus a random offset), the appearance
+seed and the route's shortest length. :func:`plan_trials` derives the offsets and appearance
+seeds from one base seed with ``numpy.random.default_rng([seed, crc32(world/route), trial])``,
+so a trial's conditions do not depend on which other routes or methods are run, and both
+methods of a trial face the same start and the same conditions (paired comparison).
+
+:func:`run_trial` runs one episode in the calling process; it caches the loaded world, map,
+descriptor and baseline policy per process (``--workers`` processes each load them once).
+Its result splits into the deterministic part (metrics, seeds, trajectory) and the wall-clock
+part (``timing``): the same seeds give the same deterministic part, serial or parallel.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+#: The paper's trial conditions: start offset up to 0.3 m and 15 degrees from the route start.
+MAX_OFFSET_M = 0.3
+MAX_OFFSET_YAW_DEG = 15.0
+#: Appearance seeds of trials start here (the maps are built under appearance 0).
+APPEARANCE_SEED_BASE = 1
+#: Keep every n-th true pose in the results (trajectory plots); 10 = once per simulated second.
+TRAJECTORY_EVERY = 10
+
+METHODS = ("ours", "sptm")
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One episode of the evaluation (plain values only: it is sent to worker processes)."""
+
+    world: str                 # world name or path
+    route: str
+    method: str                # "ours" (two-cycle voter) or "sptm" (learned baseline)
+    trial: int                 # 0-based trial number on this route
+    map_dir: str
+    appearance_seed: int
+    start_x_m: float
+    start_y_m: float
+    start_yaw_deg: float
+    offset_m: float            # distance of the start from the route's start
+    offset_yaw_deg: float
+    shortest_length_m: float   # the route's shortest length from this start (SPL)
+    baseline_path: Optional[str] = None
+    sparsity: Optional[float] = None   # the map's sparsity (the sparsity study)
+    trace_png: Optional[str] = None
+
+    @property
+    def key(self) -> str:
+        sparsity = "" if self.sparsity is None else f"@{self.sparsity:g}"
+        return f"{Path(self.world).stem}/{self.route}/{self.method}{sparsity}/{self.trial}"
+
+
+def trial_rng(seed: int, world: str, route: str, trial: int) -> np.random.Generator:
+    """The random generator of one trial's conditions (independent of the other routes)."""
+    return np.random.default_rng([int(seed), zlib.crc32(f"{Path(world).stem}/{route}".encode()), int(trial)])
+
+
+def plan_trials(world_spec, world: str, route: str, methods: Sequence[str], trials: int, seed: int,
+                map_dir: str | Path, shortest_of, *, baseline_path: Optional[str] = None,
+                sparsity: Optional[float] = None, trace_dir: Optional[Path] = None) -> list[Trial]:
+    """The trials of one route: for each trial number a start offset (uniform in a disc of
+    MAX_OFFSET_M, yaw uniform within MAX_OFFSET_YAW_DEG) and appearance seed
+    ``APPEARANCE_SEED_BASE + trial``, the same for every method. ``shortest_of(x, y)`` gives the
+    route's shortest length from a start position."""
+    spec = world_spec.routes.evaluation[route]
+    sx, sy, syaw = (float(v) for v in spec.start)
+    out = []
+    for t in range(trials):
+        rng = trial_rng(seed, world, route, t)
+        radius = MAX_OFFSET_M * math.sqrt(rng.uniform())
+        angle = rng.uniform(0.0, 2.0 * math.pi)
+        dyaw = rng.uniform(-MAX_OFFSET_YAW_DEG, MAX_OFFSET_YAW_DEG)
+        x, y = sx + radius * math.cos(angle), sy + radius * math.sin(angle)
+        shortest = round(float(shortest_of(x, y)), 4)
+        for method in methods:
+            trace = None
+            if trace_dir is not None:
+                tag = "" if sparsity is None else f"_s{sparsity:g}"
+                trace = str(trace_dir / f"{Path(world).stem}_{route}_{method}{tag}_{t:02d}.png")
+            out.append(Trial(world=world, route=route, method=method, trial=t, map_dir=str(map_dir),
+                             appearance_seed=APPEARANCE_SEED_BASE + t, start_x_m=round(x, 4),
+                             start_y_m=round(y, 4), start_yaw_deg=round(syaw + dyaw, 3),
+                             offset_m=round(radius, 4), offset_yaw_deg=round(dyaw, 3),
+                             shortest_length_m=shortest,
+                             baseline_path=baseline_path if method == "sptm" else None,
+                             sparsity=sparsity, trace_png=trace))
+    return out
+
+
+# -- running one trial (in whichever process) ---------------------------------------------------
+_CACHE: dict = {}
+
+
+def _cached(key, make):
+    if key not in _CACHE:
+        _CACHE[key] = make()
+    return _CACHE[key]
+
+
+def worker_init() -> None:
+    """Every process that runs trials: one torch / BLAS / OpenCV thread, so that results do not
+    depend on the number of workers (and N workers use N cores)."""
+    import torch
+
+    from robot.threads import limit_helper_threads
+
+    limit_helper_threads()
+    torch.set_num_threads(1)
+
+
+def run_trial(trial: Trial, config_path: Optional[str] = None) -> dict:
+    """Run one trial; returns ``{"trial": ..., "metrics": ..., "trajectory": ..., "timing": ...}``
+    (``timing`` is the only wall-clock part)."""
+    from controllers.localisation import GoalNotLocalisedError
+    from controllers.planner import PlanningError
+    from maps.store import load_map
+    from robot.descriptors.factory import make_descriptor
+    from robot.hal import Pose2D
+    from robot.settings import load_stack_config
+    from robot.sim_episode import run_sim_navigation
+    from sim.world_spec import load_world
+
+    config = _cached(("config", config_path), lambda: load_stack_config(config_path))
+    spec = _cached(("world", trial.world), lambda: load_world(trial.world))
+    loaded = _cached(("map", trial.map_dir), lambda: load_map(trial.map_dir))
+    descriptor = _cached(("descriptor", trial.map_dir),
+                         lambda: make_descriptor(config.descriptor.backend, **config.descriptor.settings))
+    policy = None
+    if trial.method == "sptm":
+        from robot.baseline import load_baseline, SptmPolicy
+
+        head = _cached(("head", trial.baseline_path), lambda: load_baseline(trial.baseline_path))
+        policy = _cached(("policy", trial.baseline_path, trial.map_dir), lambda: SptmPolicy(head, loaded))
+    elif trial.method != "ours":
+        raise ValueError(f"unknown method {trial.method!r} (methods: {', '.join(METHODS)})")
+    start = Pose2D(trial.start_x_m, trial.start_y_m, math.radians(trial.start_yaw_deg))
+    try:
+        result = run_sim_navigation(spec, trial.map_dir, descriptor, route=trial.route, start=start,
+                                    appearance_seed=trial.appearance_seed, sim_config=config.sim,
+                                    navigation=config.navigation, episode=config.episode,
+                                    loaded_map=loaded, shortest_length_m=trial.shortest_length_m,
+                                    progress=False, trace_png=trial.trace_png, action_policy=policy)
+    except (GoalNotLocalisedError, PlanningError) as exc:
+        # the goal image matched no node, or the robot placed itself where no arc chain leads
+        # to the goal (a wrong first localisation): a failed episode, not a broken run
+        return _failed_before_driving(trial, spec, exc)
+    metrics = result.metrics.to_dict()
+    timing = {"wall_time_s": metrics.pop("wall_time_s"), "ms_per_step": metrics.pop("ms_per_step")}
+    poses = result.true_poses
+    keep = list(range(0, len(poses), TRAJECTORY_EVERY)) + ([len(poses) - 1] if len(poses) % TRAJECTORY_EVERY != 1 else [])
+    trajectory = [[round(poses[i].x_m, 3), round(poses[i].y_m, 3)] for i in keep]
+    return {"trial": asdict(trial), "metrics": metrics, "goal_node": result.goal.node,
+            "trajectory": trajectory, "timing": timing}
+
+
+def _failed_before_driving(trial: Trial, spec, exc: Exception) -> dict:
+    """The record of an episode that ended with an error before or instead of driving to a goal
+    (the robot was stopped where it stood: at its start)."""
+    from robot.episode_metrics import EpisodeMetrics
+
+    goal = spec.routes.evaluation[trial.route].goal
+    distance = round(math.dist((trial.start_x_m, trial.start_y_m), goal[:2]), 4)
+    metrics = {name: None for name in EpisodeMetrics.__dataclass_fields__}
+    metrics.update(success=False, success_0_5m=False, arrived=False, end="error",
+                   reason=f"{type(exc).__name__}: {exc}", final_distance_m=distance, path_length_m=0.0,
+                   shortest_length_m=trial.shortest_length_m, spl=0.0, steps=0, sim_time_s=0.0,
+                   relocalisations=0, replans=0, collisions=0, toppled=False, planned_nodes=[], plans=[],
+                   visited_nodes=[], thresholds={})
+    timing = {"wall_time_s": metrics.pop("wall_time_s"), "ms_per_step": {
+        k: 0.0 for k in ("read_ms", "describe_ms", "decide_ms", "tick_ms", "total_ms", "total_p95_ms")}}
+    metrics.pop("ms_per_step")
+    timing["wall_time_s"] = 0.0
+    return {"trial": asdict(trial), "metrics": metrics, "goal_node": None,
+            "trajectory": [[trial.start_x_m, trial.start_y_m]], "timing": timing}

@@ -1,0 +1,132 @@
+"""The paper harness (python -m robot.bench paper) end to end on the tiny world, and its parts."""
+
+import argparse
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+
+from robot.bench import paper
+from robot.bench.trials import MAX_OFFSET_M, MAX_OFFSET_YAW_DEG, plan_trials
+from sim.world_spec import load_world
+
+TINY = str(Path(__file__).parent / "data" / "tiny_world.yaml")
+
+
+def _args(*argv):
+    parser = argparse.ArgumentParser()
+    paper.add_arguments(parser)
+    return parser.parse_args(list(argv))
+
+
+def test_trials_share_conditions_across_methods_and_do_not_depend_on_other_routes():
+    spec = load_world("hospital")
+    a = plan_trials(spec, "hospital", "easy", ["ours", "sptm"], 6, 0, "m", lambda x, y: 10.0)
+    b = plan_trials(spec, "hospital", "easy", ["ours"], 6, 0, "m", lambda x, y: 10.0)
+    c = plan_trials(spec, "hospital", "easy", ["ours"], 6, 1, "m", lambda x, y: 10.0)
+    ours = [t for t in a if t.method == "ours"]
+    sptm = [t for t in a if t.method == "sptm"]
+    assert [(t.start_x_m, t.start_y_m, t.start_yaw_deg, t.appearance_seed) for t in ours] == \
+           [(t.start_x_m, t.start_y_m, t.start_yaw_deg, t.appearance_seed) for t in sptm] == \
+           [(t.start_x_m, t.start_y_m, t.start_yaw_deg, t.appearance_seed) for t in b]
+    assert [t.start_x_m for t in c] != [t.start_x_m for t in b]          # the base seed matters
+    sx, sy, syaw = spec.routes.evaluation["easy"].start
+    for t in b:
+        assert math.dist((t.start_x_m, t.start_y_m), (sx, sy)) <= MAX_OFFSET_M + 1e-3
+        assert abs(t.start_yaw_deg - syaw) <= MAX_OFFSET_YAW_DEG + 1e-3
+    assert len({t.appearance_seed for t in b}) == 6 and 0 not in {t.appearance_seed for t in b}
+    assert len({(t.start_x_m, t.start_y_m) for t in b}) == 6
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--routes", "hospital"], "expected WORLD:ROUTE"),
+    (["--routes", "hospital:nowhere"], "has no such route"),
+    (["--routes", "atlantis:easy"], "atlantis"),
+    (["--methods", "ours,magic"], "--methods"),
+    (["--trials", "0"], "--trials"),
+    (["--sparsity", "0.5,2"], "--sparsity"),
+    (["--workers", "0"], "--workers"),
+])
+def test_bad_arguments_exit_2_naming_the_option(argv, message, tmp_path, capsys):
+    assert paper.main(_args(*argv, "--out", str(tmp_path))) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "results.json").exists()
+
+
+@pytest.fixture(scope="module")
+def serial_run(tmp_path_factory):
+    """The harness on the tiny world: one trial of both methods, and the sparsity study. The
+    baseline's head is trained on a few short expert drives in the tiny world itself (the
+    harness would train it on the hospital, minutes)."""
+    from robot.baseline import train_baseline
+    from robot.baseline.exploration import ExplorationConfig
+    from robot.settings import load_stack_config
+
+    out = tmp_path_factory.mktemp("paper_serial")
+    map_dir = paper.ensure_map(TINY, 0.5, load_stack_config(None), out, progress=False)
+    head = train_baseline(TINY, map_dir, out / "tiny_head.pt", progress=False,
+                          exploration=ExplorationConfig(episodes=6, steps_per_episode=15, appearances=1))
+    argv = ["--routes", f"{TINY}:short", "--methods", "ours,sptm", "--trials", "1", "--sparsity", "0.5,0.75",
+            "--sparsity-route", f"{TINY}:short", "--workers", "1", "--quiet", "--out", str(out),
+            "--baseline", str(head)]
+    assert paper.main(_args(*argv)) == 0
+    return out, argv
+
+
+def test_the_harness_writes_results_table_and_pictures(serial_run):
+    out, _ = serial_run
+    results = json.loads((out / "results.json").read_text())
+    episodes = results["episodes"]
+    # one main episode per method, plus one study episode at sparsity 0.75 (0.5 reuses the main one)
+    assert [(e["trial"]["method"], e["trial"]["sparsity"]) for e in episodes] == \
+        [("ours", None), ("sptm", None), ("ours", 0.75)]
+    main, baseline = episodes[0], episodes[1]
+    # both methods faced the same start and conditions
+    for key in ("start_x_m", "start_y_m", "start_yaw_deg", "appearance_seed", "shortest_length_m"):
+        assert main["trial"][key] == baseline["trial"][key]
+    assert main["trial"]["appearance_seed"] == 1 and main["trial"]["offset_m"] <= 0.3
+    assert 0 < main["trial"]["shortest_length_m"] <= 4.5 + 0.3
+    m = main["metrics"]
+    assert m["steps"] > 0 and m["final_distance_m"] is not None and "wall_time_s" not in m
+    assert len(main["trajectory"]) >= 2
+    summary = results["summary"]["tiny_world:short"]["ours"]
+    assert summary["trials"] == 1 and summary["success_rate"] == float(m["success"])
+    assert results["summary"]["tiny_world:short"]["sptm"]["trials"] == 1
+    assert set(results["sparsity"]) == {"0.5", "0.75"}
+    assert results["sparsity"]["0.75"]["map"]["nodes"] < results["sparsity"]["0.5"]["map"]["nodes"]
+    timings = json.loads((out / "timings.json").read_text())
+    assert len(timings) == 3 and all(t["wall_time_s"] >= 0 for t in timings.values())
+    md = (out / "results.md").read_text()
+    assert "| Method | tiny_world short | Average |" in md and "## Map sparsity" in md
+    assert "Ours (" in md and "SPTM-style baseline" in md
+    for name in ("sr.png", "trajectories_tiny_world_short.png", "sparsity.png"):
+        assert (out / name).stat().st_size > 5000
+    # a trace picture for every episode that drove (one that ended in an error before driving has none)
+    drove = {Path(e["trial"]["trace_png"]).name for e in episodes if e["metrics"]["steps"] > 0}
+    assert drove and {p.name for p in (out / "traces").glob("*.png")} == drove
+
+
+def test_parallel_workers_give_the_same_results_and_reruns_resume(serial_run, tmp_path):
+    out, argv = serial_run
+    # the same command with 2 workers in another folder (maps copied: mapping is not the point)
+    other = tmp_path / "parallel"
+    shutil.copytree(out / "maps", other / "maps")
+    shutil.copy(out / "tiny_head.pt", other / "tiny_head.pt")
+    parallel_argv = [a.replace(str(out), str(other)) for a in argv]
+    parallel_argv[parallel_argv.index("--workers") + 1] = "2"
+    assert paper.main(_args(*parallel_argv)) == 0
+
+    def comparable(folder):
+        data = json.loads((folder / "results.json").read_text())
+        data.pop("command")
+        return data
+    assert comparable(other) == comparable(out)
+
+    # a re-run reuses the finished episodes (their files are not rewritten)
+    stamps = {p: p.stat().st_mtime_ns for p in (out / "episodes").glob("*.json")}
+    assert len(stamps) == 3
+    assert paper.main(_args(*argv)) == 0
+    assert {p: p.stat().st_mtime_ns for p in (out / "episodes").glob("*.json")} == stamps
+    assert comparable(out) == comparable(other)
