@@ -79,7 +79,9 @@ def draw_trace(picture: TopDown, topomap: TopoMap, trace: Sequence[Pose2D], *,
         end = trace[-1]
         td.draw_marker(end.x_m, end.y_m, END_COLOR, label="end", yaw_rad=end.yaw_rad, size_px=5)
     if title:
-        cv2.putText(td.image, title, (10, 22), _FONT, 0.55, (255, 255, 255), 4, cv2.LINE_AA)
+        # on a white band: the world picture has labels of its own at the top left
+        (w, h), _ = cv2.getTextSize(title, _FONT, 0.55, 1)
+        cv2.rectangle(td.image, (4, 4), (16 + w, 30), (255, 255, 255), -1)
         cv2.putText(td.image, title, (10, 22), _FONT, 0.55, (15, 15, 15), 1, cv2.LINE_AA)
     return td
 

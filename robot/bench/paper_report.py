@@ -209,7 +209,7 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
 
     files = []
     cols = [_column(w, r) for w, r in routes]
-    fig, ax = plt.subplots(figsize=(1.8 + 1.6 * len(cols), 3.6))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.8 + 1.6 * len(cols)), 4.2))
     width = 0.8 / max(1, len(methods))
     for k, m in enumerate(methods):
         x = np.arange(len(cols)) + (k - (len(methods) - 1) / 2) * width
@@ -222,8 +222,8 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
     ax.set_xticks(np.arange(len(cols)), cols)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("success rate (1.0 m)")
-    ax.legend(fontsize=7, loc="lower left")
-    ax.set_title("Success rate per route (black: the paper's number for the same method)", fontsize=9)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=3, frameon=False)
+    ax.set_title("Success rate per route (black ticks: the paper's numbers)", fontsize=9)
     fig.tight_layout()
     files.append(out / "sr.png")
     fig.savefig(files[-1], dpi=120)
@@ -248,6 +248,7 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
                 ok += good
                 td.draw_polyline(e["trajectory"], (40, 160, 60) if good else (220, 40, 40), 2)
             td.draw_marker(*route.goal[:2], (0, 0, 0), label="goal", shape="square")
+            td.draw_marker(*route.start[:2], (0, 0, 0), label="start", shape="circle")
             panels.append((m, td.image, ok))
         fig, axes = plt.subplots(len(panels), 1, figsize=(9, 4.2 * len(panels)), squeeze=False)
         for ax, (m, img, ok) in zip(axes[:, 0], panels):
