@@ -158,7 +158,7 @@ class InitialLocaliser:
                  config: LocaliserConfig = LocaliserConfig(), *,
                  expected: Sequence[NodeId] = (), t_expected: Optional[float] = None,
                  neighbourhoods: Optional[Mapping[NodeId, frozenset]] = None,
-                 t_floor: Optional[float] = None):
+                 t_floor: Optional[float] = None, first_view: bool = False):
         """``expected`` / ``t_expected``: nodes where the robot is likely to be (a re-localisation:
         the stretch of the plan it was driving) are accepted when they are the best node of the
         whole row above the lower ``t_expected``; any other node needs ``t_milestone``. Under
@@ -168,7 +168,9 @@ class InitialLocaliser:
         ``neighbourhoods``: node -> the nodes within ``config.neighbourhood_hops`` arcs of it
         (itself included); given, every acceptance also needs ``config.min_margin`` over the
         best node outside the neighbourhood. ``t_floor``: the least score a second-look
-        candidate needs (default ``t_expected``)."""
+        candidate needs (default ``t_expected``). ``first_view``: accept the view the robot has
+        before it turns on the relaxed terms of ``LocaliserConfig.first_view_margin`` (an
+        initial localisation; needs ``neighbourhoods``)."""
         if len(node_ids) == 0:
             raise LocalisationError("the map has no nodes to localise against")
         self.node_ids = plain_node_ids(node_ids)
@@ -189,6 +191,7 @@ class InitialLocaliser:
         self._best_view: Optional[tuple] = None    # the first turn's best candidate (node, score)
         self._look: Optional[tuple] = None         # (node, score) of the second look's target
         self._look_start = 0.0
+        self._first_view = bool(first_view) and neighbourhoods is not None   # until the robot turns
 
     @property
     def done(self) -> bool:
@@ -215,6 +218,12 @@ class InitialLocaliser:
             best = Localisation(best.best_node, best.best_score, True, self.t_expected)
         if best.accepted and not distinct:
             best = Localisation(best.best_node, best.best_score, False, best.t_milestone)
+        if self._first_view and not best.accepted:
+            floor = self.t_floor - self.config.first_view_slack
+            if margin >= self.config.first_view_margin and best.best_score > floor:
+                best = Localisation(best.best_node, best.best_score, True, floor)
+            else:
+                self._first_view = False
         if self._look is not None and not best.accepted and distinct:
             node, score = self._look          # the second look: the best view of the first turn again
             near = self._neighbourhoods.get(node, frozenset((node,))) if self._neighbourhoods else {node}
@@ -235,6 +244,7 @@ class InitialLocaliser:
                                  self._ticks, f"confirming node {best.best_node!r} "
                                  f"({self._streak}/{self.config.confirm_ticks}): {best.describe()}")
         self._candidate, self._streak = None, 0
+        self._first_view = False              # the robot turns from here on
         if self._look is None and distinct and best.best_score > self.t_floor:
             # a second-look candidate needs the same node best on two ticks in a row
             if self._previous is not None and self._previous[0] == best.best_node:

@@ -221,11 +221,12 @@ class Navigator:
 
     # -- localisation ---------------------------------------------------------------------
 
-    def _new_localiser(self, expected: Sequence[NodeId] = ()) -> InitialLocaliser:
+    def _new_localiser(self, expected: Sequence[NodeId] = (), first_view: bool = True) -> InitialLocaliser:
         return InitialLocaliser(self.node_ids, self.config.thresholds.t_milestone,
                                 self.config.localiser, expected=expected,
                                 t_expected=self.config.thresholds.t_lost,
-                                neighbourhoods=self._neighbourhoods, t_floor=self.config.thresholds.t_lost)
+                                neighbourhoods=self._neighbourhoods, t_floor=self.config.thresholds.t_lost,
+                                first_view=first_view)
 
     def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         self.filter.update(row)  # keep the filter warm for the supervisor that follows
@@ -271,7 +272,7 @@ class Navigator:
             i = decision.path_index
             expected = self._plan[max(0, i - sup.window_behind): i + sup.window_ahead + 2]
         self._supervisor = None
-        self._localiser = self._new_localiser(expected)
+        self._localiser = self._new_localiser(expected, first_view=False)
         self._state = NavState.RELOCALISING
         return self._step(Action.NONE, decision=decision,
                           reason=f"{why}; re-localising globally ({self._relocalisations})")

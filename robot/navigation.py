@@ -236,6 +236,14 @@ class ResolvedGoal:
     source: str                                   # "node id 7" or "image goal.png" / "image"
     localisation: Optional[Localisation] = None
     image: Optional[np.ndarray] = None            # the goal image (RGB), for pictures
+    #: other places the goal image resembles almost as much (nodes more than
+    #: GOAL_RIVAL_HOPS arcs from the goal node scoring within GOAL_RIVAL_MARGIN of it): an
+    #: ambiguous goal picture (a dead end, a blank wall); the robot may stop at the wrong one
+    rivals: tuple[int, ...] = ()
+
+
+GOAL_RIVAL_HOPS = 2
+GOAL_RIVAL_MARGIN = 0.04
 
 
 def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
@@ -266,7 +274,19 @@ def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
         found = localise_goal_image(topomap.similarities(view), topomap.node_ids, thresholds.t_milestone)
     except GoalNotLocalisedError as exc:
         raise GoalNotLocalisedError(f"goal {source}: {exc}") from None
-    return ResolvedGoal(node=int(found.node), source=source, localisation=found, image=image)
+    return ResolvedGoal(node=int(found.node), source=source, localisation=found, image=image,
+                        rivals=_goal_rivals(topomap, int(found.node), topomap.similarities(view)))
+
+
+def _goal_rivals(topomap: TopoMap, node: int, row: np.ndarray) -> tuple[int, ...]:
+    import networkx as nx
+
+    near = nx.single_source_shortest_path_length(topomap.graph.to_undirected(as_view=True), node,
+                                                 cutoff=GOAL_RIVAL_HOPS)
+    ids = topomap.node_ids.tolist()
+    best = float(row[ids.index(node)])
+    return tuple(int(n) for n, score in sorted(zip(ids, row), key=lambda t: -t[1])
+                 if n not in near and score >= best - GOAL_RIVAL_MARGIN)
 
 
 # -- the loop ---------------------------------------------------------------------------------

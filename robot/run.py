@@ -192,6 +192,10 @@ def _navigate_sim(args, config):
         episode=config.episode, max_steps=args.max_steps, result_path=args.result,
         trace_png=args.trace if args.trace is not None else out / "navigation.png",
         video_path=args.record_video, progress=not args.quiet, make_base=make_base)
+    if result.goal.rivals:
+        print(f"warning: the goal image also resembles node(s) {', '.join(map(str, result.goal.rivals))} almost as "
+              f"much as its node {result.goal.node} (other places; a more distinctive goal picture is safer)",
+              file=sys.stderr)
     return result.metrics
 
 

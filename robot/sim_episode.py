@@ -254,7 +254,7 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
                 "world": spec.name, "map": str(loaded.path), "route": route, "start": start_label,
                 "start_pose": _pose_dict(start_pose), "goal": goal_source, "goal_node": resolved.node,
                 "goal_match": None if resolved.localisation is None else round(resolved.localisation.best_score, 4),
-                "goal_pose": _pose_dict(goal_pose), "appearance_seed": appearance_seed,
+                "goal_pose": _pose_dict(goal_pose), "goal_rivals": list(resolved.rivals), "appearance_seed": appearance_seed,
                 "sim_seed": sim_config.seed, "max_steps": budget, "success_radius_m": SUCCESS_RADIUS_M,
                 "thresholds_from_map": episode.thresholds_from_map,
                 "descriptor": loaded.identity.backend,

@@ -135,3 +135,66 @@ def test_relocalisation_accepts_an_expected_node_below_t_milestone_but_not_anoth
     # without expected nodes the threshold is t_milestone as before
     loc = InitialLocaliser(range(4), 0.6, LocaliserConfig(confirm_ticks=2))
     assert loc.tick(row_expected, heading_rad=0.0).status is LocaliserStatus.ROTATING
+
+
+# -- margin, second look and first view (ours, beyond the paper) ------------------------------------
+# four nodes on a chain 0-1-2-3 plus a far look-alike 9; with 1 hop, 0's neighbourhood is {0, 1}
+HOODS = {0: frozenset({0, 1}), 1: frozenset({0, 1, 2}), 2: frozenset({1, 2, 3}), 3: frozenset({2, 3}),
+         9: frozenset({9})}
+IDS = [0, 1, 2, 3, 9]
+
+
+def _turn(loc, rows, rate=0.2):
+    steps = []
+    for k, row in enumerate(rows):
+        steps.append(loc.tick(np.asarray(row, dtype=float), heading_rad=math.remainder(rate * k, 2 * math.pi)))
+        if loc.done:
+            break
+    return steps
+
+
+def test_an_ambiguous_view_is_no_match_even_above_t_milestone():
+    config = LocaliserConfig(confirm_ticks=2, min_margin=0.04, second_look=False)
+    ambiguous = [0.70, 0.50, 0.30, 0.20, 0.68]        # node 0 best, the look-alike 9 only 0.02 behind
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.4)
+    steps = _turn(loc, [ambiguous] * 3)
+    assert all(s.status is LocaliserStatus.ROTATING for s in steps) and "ambiguous" in steps[0].reason
+    # the same row without neighbourhoods (no margin test): the paper's rule accepts it
+    loc = InitialLocaliser(IDS, 0.6, config)
+    assert _turn(loc, [ambiguous] * 2)[-1].status is LocaliserStatus.LOCALISED
+
+
+def test_second_look_turns_back_to_the_best_view_of_a_fruitless_turn():
+    config = LocaliserConfig(confirm_ticks=2, max_search_ticks=10_000)
+    low = [0.30, 0.30, 0.30, 0.30, 0.30]
+    good = [0.20, 0.30, 0.55, 0.45, 0.35]              # node 2 best at 0.55 < t_milestone 0.6, margin 0.2
+    ticks_per_turn = math.ceil(2 * math.pi / 0.2) + 1
+    first_turn = [low] * 10 + [good] * 3 + [low] * (ticks_per_turn - 13)
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.4)
+    steps = _turn(loc, first_turn + [low] * 9 + [good] * 3)
+    assert any("turning on to the best one: node 2" in s.reason for s in steps)
+    final = steps[-1]
+    assert final.status is LocaliserStatus.LOCALISED and final.node == 2 and "second look" in final.reason
+    assert final.turned_rad > 2 * math.pi
+    # without a candidate above the floor the search still fails after one turn
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.6)
+    assert _turn(loc, first_turn + [good] * 40)[-1].status is LocaliserStatus.FAILED
+
+
+def test_first_view_is_accepted_when_unambiguous_but_not_after_turning():
+    config = LocaliserConfig(confirm_ticks=3, first_view_margin=0.05, first_view_slack=0.05)
+    view = [0.20, 0.30, 0.42, 0.33, 0.30]              # node 2 at 0.42: below t_milestone 0.6, margin 0.12
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.4, first_view=True)
+    steps = _turn(loc, [view] * 3, rate=0.0)
+    assert [s.action for s in steps] == [Action.NONE] * 3    # held still: no turn at all
+    assert steps[-1].status is LocaliserStatus.LOCALISED and steps[-1].node == 2
+    # a re-localisation (first_view False) turns instead
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.4)
+    assert loc.tick(np.asarray(view), 0.0).action is Action.SEARCH_ROTATE
+    # below the floor minus the slack, or ambiguous, the first view does not count
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.5, first_view=True)
+    assert loc.tick(np.asarray(view), 0.0).action is Action.SEARCH_ROTATE
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.4, first_view=True)
+    assert loc.tick(np.asarray([0.20, 0.30, 0.42, 0.33, 0.40]), 0.0).action is Action.SEARCH_ROTATE
+    # once the robot has turned, the same view needs t_milestone again (or a second look)
+    assert loc.tick(np.asarray(view), 0.2).action is Action.SEARCH_ROTATE

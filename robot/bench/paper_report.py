@@ -114,7 +114,7 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
                 sparsity[f"{level:g}"] = {"map": info,
                                           **summarise_episodes(eps)}
 
-    deterministic = [{"trial": _relative_paths(e["trial"], out),
+    deterministic = [{"trial": _relative_paths(e["trial"], out), "goal_rivals": e.get("goal_rivals", []),
                       **{k: e[k] for k in ("metrics", "goal_node", "trajectory")}} for e in [*main, *study]]
     results = {"command": command, "seed": seed, "success_radius_m": 1.0,
                "maps": {w: {**_map_info(Path(d)), "dir": _relative_paths({"map_dir": str(d)}, out)["map_dir"]}
@@ -175,13 +175,16 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
                      f"{info['loop_closures']} loop closure(s)")
     failed = [e for e in main if not e["metrics"]["success"]]
     if failed:
-        lines += ["", "## Failed episodes", "", "| episode | final distance (m) | end | reason |",
-                  "|---|---|---|---|"]
+        lines += ["", "## Failed episodes", "",
+                  "| episode | final distance (m) | end | goal node (ambiguous with) | reason |",
+                  "|---|---|---|---|---|"]
         for e in failed:
             t, m = e["trial"], e["metrics"]
+            rivals = e.get("goal_rivals") or []
+            goal = f"{e['goal_node']}" + (f" ({', '.join(map(str, rivals))})" if rivals else "")
             lines.append(f"| {Path(t['world']).stem}/{t['route']}/{t['method']}/{t['trial']} "
-                         f"(appearance {t['appearance_seed']}) | {m['final_distance_m']} | {m['end']} | "
-                         f"{m['reason'][:160]} |")
+                         f"(appearance {t['appearance_seed']}) | {m['final_distance_m']} | {m['end']} | {goal} | "
+                         f"{m['reason'][:150]} |")
     if sparsity:
         lines += ["", f"## Map sparsity ({sparsity_route}, our method)", "",
                   "| sparsity | nodes | mean arc (m) | SR | SPL | mean re-localisations |", "|---|---|---|---|---|---|"]

@@ -160,6 +160,7 @@ def run_trial(trial: Trial, config_path: Optional[str] = None) -> dict:
     keep = list(range(0, len(poses), TRAJECTORY_EVERY)) + ([len(poses) - 1] if len(poses) % TRAJECTORY_EVERY != 1 else [])
     trajectory = [[round(poses[i].x_m, 3), round(poses[i].y_m, 3)] for i in keep]
     return {"trial": asdict(trial), "metrics": metrics, "goal_node": result.goal.node,
+            "goal_rivals": list(result.goal.rivals),
             "trajectory": trajectory, "timing": timing}
 
 
