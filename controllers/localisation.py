@@ -158,7 +158,8 @@ class InitialLocaliser:
                  config: LocaliserConfig = LocaliserConfig(), *,
                  expected: Sequence[NodeId] = (), t_expected: Optional[float] = None,
                  neighbourhoods: Optional[Mapping[NodeId, frozenset]] = None,
-                 t_floor: Optional[float] = None, first_view: bool = False):
+                 t_floor: Optional[float] = None, first_view: bool = False,
+                 first_view_nodes: Optional[frozenset] = None):
         """``expected`` / ``t_expected``: nodes where the robot is likely to be (a re-localisation:
         the stretch of the plan it was driving) are accepted when they are the best node of the
         whole row above the lower ``t_expected``; any other node needs ``t_milestone``. Under
@@ -170,7 +171,10 @@ class InitialLocaliser:
         best node outside the neighbourhood. ``t_floor``: the least score a second-look
         candidate needs (default ``t_expected``). ``first_view``: accept the view the robot has
         before it turns on the relaxed terms of ``LocaliserConfig.first_view_margin`` (an
-        initial localisation; needs ``neighbourhoods``)."""
+        initial localisation; needs ``neighbourhoods``). ``first_view_nodes``: the only nodes
+        the first view may be placed at on those terms (the navigator passes the nodes from
+        which the goal can be reached: a relaxed match that leaves the goal unreachable is
+        more likely a look-alike than a real dead end, so the robot searches on instead)."""
         if len(node_ids) == 0:
             raise LocalisationError("the map has no nodes to localise against")
         self.node_ids = plain_node_ids(node_ids)
@@ -192,6 +196,7 @@ class InitialLocaliser:
         self._look: Optional[tuple] = None         # (node, score) of the second look's target
         self._look_start = 0.0
         self._first_view = bool(first_view) and neighbourhoods is not None   # until the robot turns
+        self._first_view_nodes = None if first_view_nodes is None else frozenset(first_view_nodes)
 
     @property
     def done(self) -> bool:
@@ -220,7 +225,8 @@ class InitialLocaliser:
             best = Localisation(best.best_node, best.best_score, False, best.t_milestone)
         if self._first_view and not best.accepted:
             floor = self.t_floor - self.config.first_view_slack
-            if margin >= self.config.first_view_margin and best.best_score > floor:
+            allowed = self._first_view_nodes is None or best.best_node in self._first_view_nodes
+            if allowed and margin >= self.config.first_view_margin and best.best_score > floor:
                 best = Localisation(best.best_node, best.best_score, True, floor)
             else:
                 self._first_view = False

@@ -142,6 +142,7 @@ class Navigator:
         hops = config.localiser.neighbourhood_hops
         self._neighbourhoods = {n: frozenset(nx.single_source_shortest_path_length(undirected, n, cutoff=hops))
                                 for n in self.node_ids}
+        self._goal_reachers = frozenset(nx.ancestors(graph, goal_node) | {goal_node})
         self._state = NavState.LOCALISING
         self._localiser = self._new_localiser()
         self._supervisor: Optional[NodeSwitchSupervisor] = None
@@ -156,7 +157,7 @@ class Navigator:
         self._final: Optional[NavigationStep] = None
         self._planning_error: Optional[PlanningError] = None
         self._contrast: Optional[np.ndarray] = None
-        reaching = nx.ancestors(graph, goal_node) | {goal_node}
+        reaching = self._goal_reachers
         self._reaches_goal = np.array([n in reaching for n in self.node_ids])
 
     @classmethod
@@ -226,7 +227,7 @@ class Navigator:
                                 self.config.localiser, expected=expected,
                                 t_expected=self.config.thresholds.t_lost,
                                 neighbourhoods=self._neighbourhoods, t_floor=self.config.thresholds.t_lost,
-                                first_view=first_view)
+                                first_view=first_view, first_view_nodes=self._goal_reachers)
 
     def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         self.filter.update(row)  # keep the filter warm for the supervisor that follows

@@ -198,3 +198,14 @@ def test_first_view_is_accepted_when_unambiguous_but_not_after_turning():
     assert loc.tick(np.asarray([0.20, 0.30, 0.42, 0.33, 0.40]), 0.0).action is Action.SEARCH_ROTATE
     # once the robot has turned, the same view needs t_milestone again (or a second look)
     assert loc.tick(np.asarray(view), 0.2).action is Action.SEARCH_ROTATE
+
+
+def test_first_view_only_places_the_robot_where_the_goal_can_be_reached():
+    config = LocaliserConfig(confirm_ticks=2)
+    view = [0.20, 0.30, 0.42, 0.33, 0.30]              # node 2, unambiguous, below t_milestone
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.4, first_view=True,
+                           first_view_nodes=frozenset({0, 1}))
+    assert loc.tick(np.asarray(view), 0.0).action is Action.SEARCH_ROTATE
+    loc = InitialLocaliser(IDS, 0.6, config, neighbourhoods=HOODS, t_floor=0.4, first_view=True,
+                           first_view_nodes=frozenset({1, 2}))
+    assert _turn(loc, [view] * 2, rate=0.0)[-1].node == 2
