@@ -1,0 +1,20 @@
+"""Safeguards for the whole test session."""
+
+import signal
+import warnings
+
+import pytest
+
+
+@pytest.fixture(autouse=True)
+def _sigint_stays_deliverable(request):
+    """The Ctrl-C tests send SIGINT to this process or to its children (which inherit its
+    disposition and signal mask). A test whose libraries leave SIGINT ignored or blocked would
+    make those tests fail far from the cause: restore it after each test and name the test."""
+    yield
+    handler = signal.getsignal(signal.SIGINT)
+    blocked = signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+    if handler is not signal.default_int_handler or blocked:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+        warnings.warn(f"{request.node.nodeid} left SIGINT {'blocked' if blocked else repr(handler)}; restored")
