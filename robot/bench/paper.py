@@ -169,10 +169,10 @@ def _episode_file(out: Path, trial: Trial) -> Path:
 
 
 def _write_json(path: Path, data) -> None:
+    from robot.map_building import write_json_atomic
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(data, indent=2) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    write_json_atomic(path, data)
 
 
 def _reusable(out: Path, trial: Trial) -> Optional[dict]:
