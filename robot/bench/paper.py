@@ -197,6 +197,8 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
             results[i] = done
         else:
             todo.append(i)
+    # trial number first, then route and method: an interrupted run has every route's first trials
+    todo.sort(key=lambda i: (trials[i].trial, i))
     bar = tqdm(total=len(trials), initial=len(results), unit="episode", desc="episodes", disable=not progress)
 
     def finish(i: int, result: dict) -> None:
