@@ -135,3 +135,40 @@ def test_parallel_workers_give_the_same_results_and_reruns_resume(serial_run, tm
     assert paper.main(_args(*argv)) == 0
     assert {p: p.stat().st_mtime_ns for p in (out / "episodes").glob("*.json")} == stamps
     assert comparable(out) == comparable(other)
+
+
+def test_report_only_reports_the_finished_episodes_and_runs_none(serial_run, tmp_path, capsys):
+    out, argv = serial_run           # episodes are reused only where they ran (their trial names the map)
+    report_argv = argv + ["--report-only"]
+    sptm_episode = next((out / "episodes").glob("*sptm*.json"))
+    aside = tmp_path / sptm_episode.name
+    shutil.move(sptm_episode, aside)           # as if the run had been interrupted before it
+    try:
+        assert paper.main(_args(*report_argv)) == 0
+        assert not sptm_episode.exists()       # nothing ran
+        results = json.loads((out / "results.json").read_text())
+        assert results["partial"] == {"finished": 2, "planned": 3}
+        assert "--report-only" not in results["command"]
+        assert [e["trial"]["method"] for e in results["episodes"]] == ["ours", "ours"]
+        assert results["summary"]["tiny_world:short"]["sptm"] == {"trials": 0}
+        md = (out / "results.md").read_text()
+        assert "**Partial: 2 of the 3 planned episodes have finished**" in md
+        baseline_row = next(line for line in md.splitlines() if line.startswith("| SPTM-style baseline"))
+        assert baseline_row.endswith("| - | - |")      # no finished trial: no cell, no average
+        assert "partial" in capsys.readouterr().out
+    finally:
+        shutil.move(aside, sptm_episode)
+    # the complete set of episodes is not partial
+    assert paper.main(_args(*report_argv)) == 0
+    assert "partial" not in json.loads((out / "results.json").read_text())
+
+    # elsewhere: no map, or maps but nothing finished: exit 2 naming what is missing, no report
+    other = tmp_path / "other"
+    other_argv = [a.replace(str(out), str(other)) for a in report_argv]
+    assert paper.main(_args(*other_argv)) == 2
+    assert "no map in" in capsys.readouterr().err
+    shutil.copytree(out / "maps", other / "maps")
+    shutil.copy(out / "tiny_head.pt", other / "tiny_head.pt")
+    assert paper.main(_args(*other_argv)) == 2
+    assert "no finished episode" in capsys.readouterr().err
+    assert not (other / "results.json").exists()

@@ -72,6 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="expert exploration episodes to train the baseline (default: the trainer's)")
     parser.add_argument("--no-traces", action="store_true", help="skip the per-episode trace pictures")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--report-only", action="store_true",
+                        help="run no episode: write the report of the episodes of this command already finished "
+                             "under --out (an interrupted or still running run; marked partial if some are missing)")
 
 
 # -- arguments ----------------------------------------------------------------------------------
@@ -114,9 +117,10 @@ def _map_is_usable(map_dir: Path) -> bool:
     return (map_dir / "manifest.json").is_file()
 
 
-def ensure_map(world_name: str, sparsity: float, config, out: Path, progress: bool) -> Path:
+def ensure_map(world_name: str, sparsity: float, config, out: Path, progress: bool, build: bool = True) -> Path:
     """The map of ``world_name``'s walkthrough at ``sparsity`` under ``out/maps`` (built when
-    missing; the walkthrough is driven once per world and reused for every level)."""
+    missing unless ``build`` is false; the walkthrough is driven once per world and reused for
+    every level)."""
     from maps.store import load_map
     from robot.frame_sources import RecordingSource, Sampling
     from robot.map_building import build_map_from_frames, world_picture_of
@@ -129,6 +133,8 @@ def ensure_map(world_name: str, sparsity: float, config, out: Path, progress: bo
     if _map_is_usable(map_dir):
         load_map(map_dir)     # fails loudly (naming the folder) on a damaged map
         return map_dir
+    if not build:
+        raise PaperBenchError(f"no map in {map_dir}: run without --report-only to build it")
     drive = out / "maps" / f"{spec.name}-walkthrough"
     if not (drive / "summary.json").is_file():
         drive_walkthrough(spec, config, drive, appearance_seed=0, progress=progress)
@@ -142,9 +148,10 @@ def ensure_map(world_name: str, sparsity: float, config, out: Path, progress: bo
 
 
 def ensure_baseline(path: Optional[Path], out: Path, hospital_map: Path, episodes: Optional[int],
-                    seed: int, progress: bool, config) -> Path:
+                    seed: int, progress: bool, config, train: bool = True) -> Path:
     """The baseline's head: ``path`` when given, else ``out/baseline/sptm_head.pt``, trained on
-    expert drives in the hospital when missing (one torch thread: the same seed gives the same head)."""
+    expert drives in the hospital when missing and ``train`` (one torch thread: the same seed gives
+    the same head)."""
     import torch
 
     from robot.baseline import train_baseline
@@ -156,6 +163,8 @@ def ensure_baseline(path: Optional[Path], out: Path, hospital_map: Path, episode
     target = out / "baseline" / "sptm_head.pt"
     if target.is_file():
         return target
+    if not train:
+        raise PaperBenchError(f"no baseline head at {target}: run without --report-only to train it")
     kwargs = {"seed": seed, "progress": progress, "sim_config": config.sim, "speeds": config.navigation.speeds}
     if episodes is not None:
         kwargs["episodes"] = episodes
@@ -269,12 +278,14 @@ def main(args: argparse.Namespace) -> int:
     progress = not args.quiet
     default_sparsity = float(config.mapping.sparsity)
     try:
-        maps = {world: ensure_map(world, default_sparsity, config, out, progress) for world, _ in routes}
+        build = not args.report_only
+        maps = {world: ensure_map(world, default_sparsity, config, out, progress, build) for world, _ in routes}
         baseline = None
         if "sptm" in methods:
-            hospital = maps.get(BASELINE_WORLD) or ensure_map(BASELINE_WORLD, default_sparsity, config, out, progress)
+            hospital = maps.get(BASELINE_WORLD) or ensure_map(BASELINE_WORLD, default_sparsity, config, out, progress,
+                                                              build)
             baseline = str(ensure_baseline(args.baseline, out, hospital, args.baseline_episodes, args.seed, progress,
-                                           config))
+                                           config, train=build))
         trace_dir = None if args.no_traces else out / "traces"
         shortest_cache: dict = {}
 
@@ -296,26 +307,40 @@ def main(args: argparse.Namespace) -> int:
             for level in levels:
                 if level == default_sparsity and (s_world, s_route) in routes and sparsity_trials <= trials:
                     continue      # the main table's episodes of this route are this level's
-                level_map = ensure_map(s_world, level, config, out, progress)
+                level_map = ensure_map(s_world, level, config, out, progress, build)
                 study += plan_trials(specs[s_world], s_world, s_route, ["ours"], sparsity_trials, args.seed,
                                      level_map, shortest_of(s_world, s_route), sparsity=level,
                                      trace_dir=trace_dir)
         config_path = None if args.config is None else str(args.config)
-        results = run_trials(plan + study, out, workers, config_path, progress)
+        if args.report_only:
+            results = [_reusable(out, t) for t in plan + study]
+            if not any(results):
+                raise PaperBenchError(f"no finished episode of this command in {out / 'episodes'}: run it "
+                                      "without --report-only")
+        else:
+            results = run_trials(plan + study, out, workers, config_path, progress)
     except PaperBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"interrupted: finished episodes are kept in {out / 'episodes'}; run the same command to resume",
-              file=sys.stderr)
+        print(f"interrupted: finished episodes are kept in {out / 'episodes'}; run the same command to resume, "
+              "or add --report-only for the report of those finished", file=sys.stderr)
         return 130
-    command = "python -m robot.bench paper " + " ".join(sys.argv[2:] if sys.argv[1:2] == ["paper"] else sys.argv[1:])
-    written = write_report(out, results[:len(plan)], results[len(plan):], specs=specs, maps=maps,
+    argv = sys.argv[2:] if sys.argv[1:2] == ["paper"] else sys.argv[1:]
+    command = "python -m robot.bench paper " + " ".join(a for a in argv if a != "--report-only")
+    written = write_report(out, [r for r in results[:len(plan)] if r], [r for r in results[len(plan):] if r],
+                           planned=len(results), planned_routes=routes, planned_methods=methods,
+                           specs=specs, maps=maps,
                            levels=levels, default_sparsity=default_sparsity,
                            sparsity_route=args.sparsity_route if levels else None,
                            sparsity_trials=sparsity_trials, command=command.strip(), seed=args.seed)
     elapsed = time.perf_counter() - started
     print(written["table"])
     print(f"\nwrote {', '.join(str(p) for p in written['files'])}")
-    print(f"{len(results)} episodes, {elapsed / 60:.1f} min wall with {workers} worker(s)")
+    finished = sum(1 for r in results if r)
+    if args.report_only:
+        print(f"report of {finished} finished of {len(results)} planned episodes"
+              + ("" if finished == len(results) else " (partial: run the command without --report-only to finish)"))
+    else:
+        print(f"{len(results)} episodes, {elapsed / 60:.1f} min wall with {workers} worker(s)")
     return 0

@@ -82,19 +82,29 @@ def _relative_paths(trial: dict, out: Path) -> dict:
 
 
 def _cell(s: dict) -> str:
-    return f"{s['success_rate']:.2f} ({s['spl']:.2f})"
+    return f"{s['success_rate']:.2f} ({s['spl']:.2f})" if s["trials"] else "-"
 
 
 def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, specs: dict, maps: dict,
                  levels: Sequence[float], default_sparsity: float, sparsity_route: Optional[str],
-                 sparsity_trials: int, command: str, seed: int) -> dict:
-    """Write every output; returns ``{"table": markdown table, "files": [paths]}``."""
+                 sparsity_trials: int, command: str, seed: int, planned: Optional[int] = None,
+                 planned_routes: Optional[Sequence[tuple[str, str]]] = None,
+                 planned_methods: Optional[Sequence[str]] = None) -> dict:
+    """Write every output; returns ``{"table": markdown table, "files": [paths]}``.
+
+    ``planned``: the number of episodes the command plans; when more than ``main`` and ``study``
+    hold, the report is marked partial (cells count the trials finished). ``planned_routes``
+    (world, route) and ``planned_methods`` give the table's columns and rows (default: those of
+    ``main``), so a partial report shows a "-" where nothing has finished yet."""
     out = Path(out)
-    routes: list[tuple[str, str]] = []
+    finished = len(main) + len(study)
+    partial = {"finished": finished, "planned": planned} if planned is not None and finished < planned else None
+    routes: list[tuple[str, str]] = [(Path(w).stem, r) for w, r in planned_routes or []]
     for e in main:
         if _route_id(e) not in routes:
             routes.append(_route_id(e))
-    methods = [m for m in ("ours", "sptm") if any(e["trial"]["method"] == m for e in main)]
+    methods = [m for m in ("ours", "sptm") if m in (planned_methods or ())
+               or any(e["trial"]["method"] == m for e in main)]
     summary = {f"{w}:{r}": {m: summarise_episodes([e for e in main if _route_id(e) == (w, r)
                                                     and e["trial"]["method"] == m]) for m in methods}
                for w, r in routes}
@@ -120,7 +130,7 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
                "maps": {w: {**_map_info(Path(d)), "dir": _relative_paths({"map_dir": str(d)}, out)["map_dir"]}
                         for w, d in maps.items()},
                "summary": summary, "sparsity_route": sparsity_route, "sparsity": sparsity,
-               "episodes": deterministic}
+               **({"partial": partial} if partial else {}), "episodes": deterministic}
     files = [_write(out / "results.json", json.dumps(results, indent=2) + "\n")]
     timings = {e["trial"]["world"] + "/" + e["trial"]["route"] + "/" + e["trial"]["method"]
                + ("" if e["trial"]["sparsity"] is None else f"@{e['trial']['sparsity']:g}")
@@ -129,7 +139,7 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
 
     table = _paper_table(routes, methods, summary)
     md = _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route,
-                   results["maps"], [*main, *study], out)
+                   results["maps"], [*main, *study], out, partial)
     files.append(_write(out / "results.md", md))
     files += _plots(out, routes, methods, summary, main, specs, sparsity)
     return {"table": table, "files": files}
@@ -140,10 +150,10 @@ def _paper_table(routes, methods, summary) -> str:
     lines = ["| Method | " + " | ".join(cols) + " | Average |", "|---" * (len(cols) + 2) + "|"]
     for m in methods:
         cells = [summary[f"{w}:{r}"][m] for w, r in routes]
-        avg_sr = np.mean([c["success_rate"] for c in cells])
-        avg_spl = np.mean([c["spl"] for c in cells])
-        lines.append(f"| {METHOD_LABELS[m]} | " + " | ".join(_cell(c) for c in cells)
-                     + f" | {avg_sr:.2f} ({avg_spl:.2f}) |")
+        average = "-"                # an average needs every column
+        if all(c["trials"] for c in cells):
+            average = f"{np.mean([c['success_rate'] for c in cells]):.2f} ({np.mean([c['spl'] for c in cells]):.2f})"
+        lines.append(f"| {METHOD_LABELS[m]} | " + " | ".join(_cell(c) for c in cells) + f" | {average} |")
     for m in methods:
         paper = PAPER_SR[m]
         if any(c in paper for c in cols):
@@ -157,20 +167,27 @@ def _paper_table(routes, methods, summary) -> str:
 
 
 def _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route, maps,
-              episodes, out: Path) -> str:
+              episodes, out: Path, partial: Optional[dict] = None) -> str:
     trials = max((s["trials"] for r in summary.values() for s in r.values()), default=0)
-    lines = ["# The paper's table in PyBullet", "",
-             f"Made by `{command}` ({trials} trials per route and method). Cells: success rate within "
+    lines = ["# The paper's table in PyBullet", ""]
+    if partial:
+        lines += [f"**Partial: {partial['finished']} of the {partial['planned']} planned episodes have finished** "
+                  "(the run was interrupted or is still running; the same command resumes it). Cells count the "
+                  "trials finished (column `trials` below); an average needs every column.", ""]
+    lines += [f"Made by `{command}` ({'up to ' if partial else ''}{trials} trials per route and method). "
+             "Cells: success rate within "
              "1.0 m (SPL). SPL divides by the route's shortest length from the trial's start (within the "
              "route's corridor, corners cut: `sim/shortest_path.py`). Trials start at the route start "
              "offset by up to 0.3 m and 15 deg, under appearance seeds 1, 2, ... (the maps: seed 0).", "",
              table, "", "## Per route", "",
-             "| route | method | SR 1.0 m | SR 0.5 m | SPL | mean final distance (m) | mean re-localisations "
-             "| collisions | failed trials |", "|---|---|---|---|---|---|---|---|---|"]
+             "| route | method | trials | SR 1.0 m | SR 0.5 m | SPL | mean final distance (m) | mean re-localisations "
+             "| collisions | failed trials |", "|---|---|---|---|---|---|---|---|---|---|"]
     for w, r in routes:
         for m in methods:
             s = summary[f"{w}:{r}"][m]
-            lines.append(f"| {w} {r} | {m} | {s['success_rate']:.2f} | {s['success_rate_0_5m']:.2f} | "
+            if not s["trials"]:
+                continue
+            lines.append(f"| {w} {r} | {m} | {s['trials']} | {s['success_rate']:.2f} | {s['success_rate_0_5m']:.2f} | "
                          f"{s['spl']:.2f} | {s['mean_final_distance_m']} | {s['mean_relocalisations']:.2f} | "
                          f"{s['collisions']} | {', '.join(map(str, s['failures'])) or '-'} |")
     lines += ["", "Maps (built from each world's walkthrough under appearance 0):", ""]
@@ -220,7 +237,7 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
     width = 0.8 / max(1, len(methods))
     for k, m in enumerate(methods):
         x = np.arange(len(cols)) + (k - (len(methods) - 1) / 2) * width
-        sr = [summary[f"{w}:{r}"][m]["success_rate"] for w, r in routes]
+        sr = [summary[f"{w}:{r}"][m].get("success_rate", np.nan) for w, r in routes]   # nan: none finished
         ax.bar(x, sr, width * 0.9, color=COLORS[m], label=METHOD_LABELS[m])
         paper = [PAPER_SR[m].get(c) for c in cols]
         px = [xi for xi, p in zip(x, paper) if p is not None]
