@@ -50,6 +50,16 @@ class DescriptorIdentity:
         return None
 
 
+def check_state_matches(state: Mapping[str, object], backend: str, settings: Mapping[str, object]) -> None:
+    """Raise :class:`DescriptorError` unless a saved ``state`` is for ``backend`` with ``settings``."""
+    saved = state.get("backend")
+    if saved != backend:
+        raise DescriptorError(f"descriptor state is for backend {saved!r}, this descriptor is {backend!r}")
+    saved_settings = dict(state.get("settings") or {})
+    if saved_settings != dict(settings):
+        raise DescriptorError(f"descriptor state settings {saved_settings} do not match {dict(settings)}")
+
+
 @runtime_checkable
 class Descriptor(Protocol):
     """A place descriptor backend."""

@@ -18,7 +18,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from robot.descriptors.base import DescriptorError, DescriptorIdentity
+from robot.descriptors.base import DescriptorError, DescriptorIdentity, check_state_matches
 from robot.descriptors.preprocess import third_bounds, to_rgb_batch
 from robot.descriptors.vlad import VladVocabulary, l2_normalise
 
@@ -53,12 +53,7 @@ class DenseVlad:
         return state
 
     def load_state(self, state: Mapping[str, object]) -> None:
-        backend = state.get("backend")
-        if backend != self.backend:
-            raise DescriptorError(f"descriptor state is for backend {backend!r}, this descriptor is {self.backend!r}")
-        settings = state.get("settings")
-        if dict(settings or {}) != self.settings:
-            raise DescriptorError(f"descriptor state settings {settings} do not match {self.settings}")
+        check_state_matches(state, self.backend, self.settings)
         centres = state.get("vlad_centres")
         if centres is None:
             raise DescriptorError("descriptor state holds no VLAD vocabulary (vlad_centres)")
@@ -128,9 +123,7 @@ class DenseMeanPool:
         return {"backend": self.backend, "settings": self.settings}
 
     def load_state(self, state: Mapping[str, object]) -> None:
-        if state.get("backend") != self.backend or dict(state.get("settings") or {}) != self.settings:
-            raise DescriptorError(f"descriptor state for backend {state.get('backend')!r} {state.get('settings')} does not "
-                                  f"match {self.backend!r} {self.settings}")
+        check_state_matches(state, self.backend, self.settings)
 
     def local_features(self, images: Sequence[np.ndarray]) -> np.ndarray:
         return self.extractor(to_rgb_batch(images))

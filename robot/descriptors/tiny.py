@@ -13,7 +13,7 @@ from typing import Mapping, Sequence
 import cv2
 import numpy as np
 
-from robot.descriptors.base import DescriptorError, DescriptorIdentity
+from robot.descriptors.base import DescriptorError, DescriptorIdentity, check_state_matches
 from robot.descriptors.preprocess import third_bounds, to_rgb_batch
 from robot.descriptors.vlad import l2_normalise
 
@@ -48,9 +48,7 @@ class TinyDescriptor:
         return {"backend": self.backend, "settings": self.settings}
 
     def load_state(self, state: Mapping[str, object]) -> None:
-        if state.get("backend") != self.backend or dict(state.get("settings") or {}) != self.settings:
-            raise DescriptorError(f"descriptor state for backend {state.get('backend')!r} {state.get('settings')} does not "
-                                  f"match {self.backend!r} {self.settings}")
+        check_state_matches(state, self.backend, self.settings)
 
     def _thumbs(self, images: Sequence[np.ndarray]) -> np.ndarray:
         out = []
