@@ -128,18 +128,60 @@ class SimNavigationResult:
     true_poses: tuple[Pose2D, ...] = ()  # the true pose at every step, start and end included
 
 
-class _TruthRecorder:
-    """The observer: records true poses, aborts on toppling, feeds the video and the progress bar."""
+def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray) -> dict:
+    """One line of the step log: the true pose after the step, what the navigator decided, and
+    the node the raw view matched best (``node_ids``: the similarity row's order)."""
+    s = record.step
+    sims = record.similarities
+    best = int(np.argmax(sims))
 
-    def __init__(self, base: SimLimo, video: Optional[NavigationVideo], bar: Optional[tqdm]):
+    def r3(v):
+        return None if v is None else round(float(v), 3)
+    return {"step": record.index, "x_m": round(pose.x_m, 3), "y_m": round(pose.y_m, 3),
+            "yaw_deg": round(math.degrees(pose.yaw_rad), 1), "state": s.state.value, "action": s.action.value,
+            "current_node": s.current_node, "target_node": s.target_node,
+            "current_score": r3(s.current_score), "target_score": r3(s.target_score),
+            "thirds": None if s.thirds is None else [r3(s.thirds.left), r3(s.thirds.middle), r3(s.thirds.right)],
+            "best_raw_node": int(node_ids[best]), "best_raw_score": r3(sims[best]),
+            "relocalisations": s.relocalisations, "reason": s.reason}
+
+
+class _StepLog:
+    """The step log (JSON lines), written to a temporary file and moved into place at the end,
+    whatever the end (so a crash leaves the log of the steps made, never a half-written line)."""
+
+    def __init__(self, path: Path, node_ids: np.ndarray):
+        self.node_ids = node_ids
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        self.file = self.tmp.open("w", encoding="utf-8")
+
+    def write(self, entry: dict) -> None:
+        self.file.write(json.dumps(entry) + "\n")
+
+    def close(self) -> None:
+        self.file.close()
+        os.replace(self.tmp, self.path)
+
+
+class _TruthRecorder:
+    """The observer: records true poses, aborts on toppling, feeds the video, the step log and
+    the progress bar."""
+
+    def __init__(self, base: SimLimo, video: Optional[NavigationVideo], bar: Optional[tqdm],
+                 log: Optional[_StepLog] = None):
         self.truth = base.ground_truth
         self.poses: list[Pose2D] = [self.truth.true_pose()]
         self.video = video
         self.bar = bar
+        self.log = log
 
     def __call__(self, record: StepRecord) -> Optional[str]:
         pose = self.truth.true_pose()
         self.poses.append(pose)
+        if self.log is not None:
+            self.log.write(step_log_entry(record, pose, self.log.node_ids))
         if self.video is not None:
             self.video.add(record.frame.rgb, record.step, record.frame.stamp_s)
         if self.bar is not None:
@@ -178,7 +220,8 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
                        shortest_length_m: Optional[float] = None,
                        on_setup: Optional[Callable[[dict], None]] = None,
                        make_base: Optional[Callable[..., SimLimo]] = None,
-                       action_policy: Optional[ActionPolicy] = None) -> SimNavigationResult:
+                       action_policy: Optional[ActionPolicy] = None,
+                       step_log: Optional[Union[str, Path]] = None) -> SimNavigationResult:
     """Run one navigation episode in the simulator; see the module docstring.
 
     ``world``: a world name, path or spec. ``map_dir``: the map folder. ``descriptor``: the
@@ -194,6 +237,8 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
     the simulated base (default :class:`sim.hal.SimLimo`; :class:`sim.serial_twin.SerialTwinLimo`
     drives the same body through the serial backend); it must offer ``ground_truth``.
     ``action_policy``: a learned policy choosing the actions instead of the voter (the baseline).
+    ``step_log``: a JSON-lines file with one line per step (:func:`step_log_entry`: true pose,
+    state, action, nodes, scores, reason) for looking into an episode.
 
     Raises: ``maps.graph.MapError`` (bad map folder), :class:`robot.navigation.DescriptorMismatchError`,
     :class:`StartError`, ``WorldError``, :class:`robot.navigation.GoalImageError`,
@@ -240,6 +285,7 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
     video = NavigationVideo(video_path, loaded.thumbnail, fps=1.0 / sim_config.control_period_s) \
         if video_path is not None else None
     bar = tqdm(total=budget, unit="step", desc="navigating", disable=not progress, leave=False)
+    log = _StepLog(step_log, loaded.topomap.node_ids) if step_log is not None else None
     try:
         with base:
             truth = base.ground_truth
@@ -263,7 +309,7 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
             if on_setup is not None:
                 on_setup(setup)
             collisions_before = truth.collision_count()
-            recorder = _TruthRecorder(base, video, bar)
+            recorder = _TruthRecorder(base, video, bar, log)
             outcome = run_episode(base, loaded.topomap, descriptor, resolved.node, nav_config, budget,
                                   observer=recorder, thirds_contrast=episode.thirds_contrast,
                                   action_policy=action_policy)
@@ -273,6 +319,8 @@ def run_sim_navigation(world: Union[str, Path, WorldSpec], map_dir: Union[str, P
         bar.close()
         if video is not None:
             video.close()
+        if log is not None:
+            log.close()
 
     metrics = compute_metrics(outcome, recorder.poses, goal_pose, shortest, collisions, toppled)
     summary = format_summary(metrics)

@@ -172,3 +172,54 @@ def test_report_only_reports_the_finished_episodes_and_runs_none(serial_run, tmp
     assert paper.main(_args(*other_argv)) == 2
     assert "no finished episode" in capsys.readouterr().err
     assert not (other / "results.json").exists()
+
+
+def _replay_args(*argv):
+    from robot.bench import replay
+
+    parser = argparse.ArgumentParser()
+    replay.add_arguments(parser)
+    return replay, parser.parse_args([str(a) for a in argv])
+
+
+def test_replay_reproduces_an_episode_with_a_step_log(serial_run, tmp_path, capsys):
+    out, _ = serial_run
+    episode = next((out / "episodes").glob("*_ours_0.json"))
+    recorded = json.loads(episode.read_text())
+    log = tmp_path / "steps.jsonl"
+    replay, args = _replay_args(episode, "--log", log, "--quiet", "--events", "5")
+    assert replay.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "reproduced" in printed and "NOT" not in printed
+    lines = [json.loads(line) for line in log.read_text().splitlines()]
+    assert len(lines) == recorded["metrics"]["steps"] > 0
+    assert [e["step"] for e in lines] == list(range(len(lines)))
+    assert lines[0]["state"] in ("localising", "navigating")
+    assert lines[-1]["state"] in ("arrived", "failed")
+    first = recorded["trajectory"][1] if len(recorded["trajectory"]) > 1 else recorded["trajectory"][0]
+    assert math.dist((lines[min(len(lines) - 1, 9)]["x_m"], lines[min(len(lines) - 1, 9)]["y_m"]), first) < 1e-6
+    assert not list(tmp_path.glob(".steps.jsonl.tmp-*"))
+
+    # an episode whose record differs (as if the code had changed since): exit 1, naming what differs
+    tampered = tmp_path / "run" / "episodes" / episode.name
+    tampered.parent.mkdir(parents=True)
+    recorded["metrics"]["steps"] += 7
+    tampered.write_text(json.dumps(recorded))
+    replay, args = _replay_args(tampered, "--quiet", "--events", "0")
+    assert replay.main(args) == 1
+    assert "NOT reproduced (steps" in capsys.readouterr().out
+    assert (tmp_path / "run" / "replays" / (episode.stem + ".steps.jsonl")).is_file()   # the default log
+
+
+@pytest.mark.parametrize("make, message", [
+    (lambda d, out: d / "missing.json", "cannot read"),
+    (lambda d, out: out / "results.json", "not an episode file"),
+    (lambda d, out: (d / "bad.json").write_text("{not json") and d / "bad.json", "not JSON"),
+])
+def test_replay_refuses_what_is_not_an_episode(serial_run, tmp_path, capsys, make, message):
+    out, _ = serial_run
+    path = make(tmp_path, out)
+    replay, args = _replay_args(path, "--quiet")
+    assert replay.main(args) == 2
+    err = capsys.readouterr().err
+    assert message in err and str(path) in err

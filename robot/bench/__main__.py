@@ -17,6 +17,7 @@ COMMANDS = {
     "perf": ("robot.bench.perf", "speed and size: descriptor, control step split, mapping fps, bytes/node, memory"),
     "baseline": ("robot.bench.baseline", "train the SPTM-style learned action baseline from expert drives"),
     "paper": ("robot.bench.paper", "the paper's table: SR/SPL per route for our method and the baseline"),
+    "replay": ("robot.bench.replay", "replay one episode of a paper run with a per-step log; checks it reproduces"),
 }
 
 

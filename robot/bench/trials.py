@@ -118,9 +118,11 @@ def worker_init() -> None:
     torch.set_num_threads(1)
 
 
-def run_trial(trial: Trial, config_path: Optional[str] = None) -> dict:
+def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Optional[str] = None,
+              video_path: Optional[str] = None, progress: bool = False) -> dict:
     """Run one trial; returns ``{"trial": ..., "metrics": ..., "trajectory": ..., "timing": ...}``
-    (``timing`` is the only wall-clock part)."""
+    (``timing`` is the only wall-clock part). ``step_log`` / ``video_path``: a per-step JSON-lines
+    log and an MP4 with overlays (``python -m robot.bench replay``); neither changes the run."""
     from controllers.localisation import GoalNotLocalisedError
     from controllers.planner import PlanningError
     from maps.store import load_map
@@ -149,7 +151,8 @@ def run_trial(trial: Trial, config_path: Optional[str] = None) -> dict:
                                     appearance_seed=trial.appearance_seed, sim_config=config.sim,
                                     navigation=config.navigation, episode=config.episode,
                                     loaded_map=loaded, shortest_length_m=trial.shortest_length_m,
-                                    progress=False, trace_png=trial.trace_png, action_policy=policy)
+                                    progress=progress, trace_png=trial.trace_png, action_policy=policy,
+                                    step_log=step_log, video_path=video_path)
     except (GoalNotLocalisedError, PlanningError) as exc:
         # the goal image matched no node, or the robot placed itself where no arc chain leads
         # to the goal (a wrong first localisation): a failed episode, not a broken run

@@ -1,0 +1,129 @@
+"""Replay one episode of ``python -m robot.bench paper`` with a step log, to see why it went as it did.
+
+``python -m robot.bench replay RUN/episodes/hospital_hard_ours_3.json`` re-runs the episode's
+trial (world, map, start pose, appearance seed, method: everything is in the episode file) in
+this process the way the harness ran it (one torch thread), and writes what a trace picture
+cannot show: for every step the true pose, the navigator's state and action, the current and
+target node with their filtered scores, the thirds' scores, the node the raw view matched best
+and the navigator's reason (JSON lines, ``RUN/replays/<episode>.steps.jsonl`` by default;
+``--video`` adds the MP4 with overlays). It prints the episode's events (localised, node
+reached, lost, searching, ...) and whether the replay reproduced the recorded episode (same
+steps, end, success, final distance, re-localisations): the runs are deterministic, so a
+difference means the code or the configuration changed since.
+
+Exit status: 0 reproduced, 1 not reproduced, 2 bad input (the file named).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from dataclasses import MISSING, fields, replace
+from pathlib import Path
+
+#: What must match for an episode to count as reproduced.
+COMPARED = ("steps", "end", "success", "final_distance_m", "relocalisations")
+
+
+class ReplayError(ValueError):
+    """The episode file cannot be replayed (names the file and what is wrong)."""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("episode", type=Path, help="an episode file of a paper run: RUN/episodes/<episode>.json")
+    parser.add_argument("--log", type=Path, default=None,
+                        help="step log to write (JSON lines; default RUN/replays/<episode>.steps.jsonl)")
+    parser.add_argument("--video", type=Path, default=None, help="also write an MP4 of the camera with overlays")
+    parser.add_argument("--trace", type=Path, default=None, help="also write the top-down trace picture here")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="stack config YAML (default configs/default.yaml; the paper run's --config if it had one)")
+    parser.add_argument("--events", type=int, default=40, help="print the last N events (default 40; 0: none)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def load_episode(path: Path):
+    """The :class:`robot.bench.trials.Trial` and the recorded metrics of an episode file."""
+    from robot.bench.trials import Trial
+
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ReplayError(f"{path}: cannot read the episode file ({exc.strerror or exc})") from None
+    except json.JSONDecodeError as exc:
+        raise ReplayError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("trial"), dict) or not isinstance(data.get("metrics"), dict):
+        raise ReplayError(f"{path}: not an episode file of python -m robot.bench paper (needs 'trial' and 'metrics'; "
+                          "results.json is the summary: pass a file from the run's episodes/ folder)")
+    known = {f.name for f in fields(Trial)}
+    missing = [f.name for f in fields(Trial) if f.default is MISSING and f.name not in data["trial"]]
+    if missing:
+        raise ReplayError(f"{path}: trial field(s) {', '.join(missing)} missing")
+    try:
+        trial = Trial(**{k: v for k, v in data["trial"].items() if k in known})
+    except TypeError as exc:
+        raise ReplayError(f"{path}: bad trial ({exc})") from None
+    if not Path(trial.map_dir).is_dir():
+        raise ReplayError(f"{path}: the episode's map {trial.map_dir} is missing (was the run folder moved? "
+                          "episodes name their map by its absolute path)")
+    if trial.method == "sptm" and not (trial.baseline_path and Path(trial.baseline_path).is_file()):
+        raise ReplayError(f"{path}: the baseline head {trial.baseline_path} is missing")
+    return trial, data["metrics"]
+
+
+def differences(recorded: dict, replayed: dict) -> list[str]:
+    """``["steps 1203 -> 1187", ...]`` for every compared metric that differs."""
+    return [f"{k} {recorded.get(k)!r} -> {replayed.get(k)!r}" for k in COMPARED if recorded.get(k) != replayed.get(k)]
+
+
+def events(log_path: Path) -> list[str]:
+    """One line per change of state or current node in a step log."""
+    out, last = [], None
+    with open(log_path, encoding="utf-8") as f:
+        for line in f:
+            e = json.loads(line)
+            key = (e["state"], e["current_node"])
+            if key != last:
+                out.append(f"{e['step']:>5}  ({e['x_m']:6.2f}, {e['y_m']:6.2f}, {e['yaw_deg']:6.1f} deg)  "
+                           f"{e['state']:<12} node {e['current_node']} -> {e['target_node']}  {e['reason'][:110]}")
+            last = key
+    return out
+
+
+def main(args: argparse.Namespace) -> int:
+    from robot.bench.trials import run_trial, worker_init
+
+    try:
+        trial, recorded = load_episode(args.episode)
+        if args.config is not None and not args.config.is_file():
+            raise ReplayError(f"--config {args.config}: no such file")
+    except ReplayError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    log = args.log or args.episode.resolve().parent.parent / "replays" / (args.episode.stem + ".steps.jsonl")
+    trial = replace(trial, trace_png=None if args.trace is None else str(args.trace))
+    worker_init()          # as the harness ran it: one torch / BLAS / OpenCV thread
+    try:
+        result = run_trial(trial, None if args.config is None else str(args.config), step_log=str(log),
+                           video_path=None if args.video is None else str(args.video), progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"interrupted: the steps made are in {log}", file=sys.stderr)
+        return 130
+    if args.events and log.is_file():
+        lines = events(log)
+        if len(lines) > args.events:
+            print(f"... {len(lines) - args.events} earlier events (all steps: {log})")
+        print("\n".join(lines[-args.events:]))
+    m = result["metrics"]
+    print(f"\n{trial.key}: {'success' if m['success'] else 'failure'}, {m['steps']} steps, end {m['end']}, "
+          f"final distance {m['final_distance_m']} m: {m['reason']}")
+    written = [str(log)] if log.is_file() else []
+    written += [str(p) for p in (args.video, args.trace) if p is not None]
+    if written:
+        print(f"wrote {', '.join(written)}")
+    diff = differences(recorded, m)
+    if diff:
+        print(f"NOT reproduced ({'; '.join(diff)}): the code or the configuration changed since the episode ran")
+        return 1
+    print("reproduced: the same steps, end and final distance as the recorded episode")
+    return 0
