@@ -302,8 +302,24 @@ class NavigationConfig:
     #: Global re-localisations allowed in one episode before giving up (FAILED); bounds a
     #: robot that keeps getting lost.
     max_relocalisations: int = 5
+    #: Turn hints from the mapping drive's odometry (maps recorded with odometry; off by default
+    #: until measured). At a corner the target node's view lies beside the camera's field of view,
+    #: so no third recognises it and the voter turns late; with hints, once a node is confirmed
+    #: and the map says the drive turned by at least ``heading_hint_min_deg`` from it to the
+    #: target, the robot first turns (LEFT / RIGHT, odometry heading) by that angle to within
+    #: ``heading_hint_tolerance_deg``, then the voter steers again. The voter only; not the
+    #: learned policy.
+    heading_hints: bool = False
+    heading_hint_min_deg: float = 25.0
+    heading_hint_tolerance_deg: float = 10.0
 
     def __post_init__(self) -> None:
+        if not isinstance(self.heading_hints, bool):
+            raise ValueError(f"heading_hints must be true or false, got {self.heading_hints!r}")
+        for name in ("heading_hint_min_deg", "heading_hint_tolerance_deg"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < 180.0:
+                raise ValueError(f"{name} must be a number of degrees in (0, 180), got {value!r}")
         if not isinstance(self.hold_action_between_votes, bool):
             raise ValueError(f"hold_action_between_votes must be true or false, "
                              f"got {self.hold_action_between_votes!r}")

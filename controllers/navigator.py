@@ -30,6 +30,10 @@ States (:class:`NavState`):
   NAVIGATING comes from ``policy(target_node)`` instead of the voter (the SPTM-style baseline:
   same localisation, planning and node switching, a classifier picks the action); there is no
   weak vote and no search turn then, the supervisor's LOST still re-localises.
+* (turn hints) with ``node_headings`` (the mapping drive's odometry heading per node) and
+  ``heading_hints`` on: after a node is confirmed, when the drive turned from it to the target by
+  at least ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on the odometry
+  heading) before the voter steers again: at corners the target is beside the field of view.
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero.
 * FAILED (final): cannot place itself, goal unreachable, or too many re-localisations;
   ``reason`` says which; velocity zero.
@@ -38,8 +42,9 @@ States (:class:`NavState`):
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass
-from typing import Callable, Hashable, Optional, Sequence, Tuple, Union
+from typing import Callable, Hashable, Mapping, Optional, Sequence, Tuple, Union
 
 import networkx as nx
 import numpy as np
@@ -116,7 +121,8 @@ class Navigator:
     """
 
     def __init__(self, graph: nx.DiGraph, node_ids: Sequence[NodeId], goal_node: NodeId,
-                 config: NavigationConfig = NavigationConfig()):
+                 config: NavigationConfig = NavigationConfig(),
+                 node_headings: Optional[Mapping[NodeId, float]] = None):
         self.planner = GlobalPlanner(graph)
         self.node_ids = plain_node_ids(node_ids)
         if len(set(self.node_ids)) != len(self.node_ids):
@@ -159,6 +165,15 @@ class Navigator:
         self._contrast: Optional[np.ndarray] = None
         reaching = self._goal_reachers
         self._reaches_goal = np.array([n in reaching for n in self.node_ids])
+        self._headings: Optional[dict] = None
+        if node_headings is not None:
+            headings = {n: node_headings.get(n) for n in self.node_ids}
+            bad = [n for n, h in headings.items() if h is None or not math.isfinite(float(h))]
+            if bad:
+                raise NavigationInputError(f"node_headings has no finite heading for node {bad[0]!r}")
+            self._headings = {n: float(h) for n, h in headings.items()}
+        self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
+        self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
 
     @classmethod
     def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
@@ -273,6 +288,7 @@ class Navigator:
             i = decision.path_index
             expected = self._plan[max(0, i - sup.window_behind): i + sup.window_ahead + 2]
         self._supervisor = None
+        self._hint = None
         self._localiser = self._new_localiser(expected, first_view=False)
         self._state = NavState.RELOCALISING
         return self._step(Action.NONE, decision=decision,
@@ -284,6 +300,7 @@ class Navigator:
                        heading_rad: Optional[float], policy: PolicyInput = None) -> NavigationStep:
         decision = self._supervisor.tick(row)
         if decision.confirmed_node is not None:
+            self._hint = None if heading_rad is None else (decision.confirmed_node, float(heading_rad))
             self._remember(decision.confirmed_node)
             self.voter.reset()
             self._no_vote_ticks = 0
@@ -301,6 +318,10 @@ class Navigator:
                 raise NavigationInputError(f"the action policy returned {action!r} for node "
                                            f"{decision.target_node!r}; expected a driving Action")
             return self._step(action, decision, reason=f"{decision.reason}; policy: {action.value}")
+
+        hinted = self._heading_hint(decision, heading_rad)
+        if hinted is not None:
+            return hinted
 
         scores = self._thirds_for(decision.target_node, thirds)
         gate = None   # what must exceed t_limited_control (None: the scores themselves)
@@ -342,6 +363,28 @@ class Navigator:
                               f"target {decision.target_node!r} out of sight for "
                               f"{self._no_vote_ticks} ticks; turning counter-clockwise to find it")
         return self._step(vote.action, decision, scores, vote, f"{decision.reason}; {vote.reason}")
+
+    def _heading_hint(self, decision: SupervisorDecision, heading_rad: Optional[float]) -> Optional[NavigationStep]:
+        """The turn the map's odometry asks for at a corner (see the module docstring), or None."""
+        if (self._headings is None or not self.config.heading_hints or self._hint is None or heading_rad is None
+                or self._state is not NavState.NAVIGATING or decision.target_node is None):
+            return None
+        node, heading_then = self._hint
+        target = decision.target_node
+        if (node, target) == self._hint_done or node == target:
+            return None
+        turn = _wrap(self._headings[target] - self._headings[node])
+        if abs(turn) < math.radians(self.config.heading_hint_min_deg):
+            return None
+        error = _wrap(heading_then + turn - float(heading_rad))
+        if abs(error) <= math.radians(self.config.heading_hint_tolerance_deg):
+            self._hint_done = (node, target)
+            self.voter.reset()
+            self._no_vote_ticks = 0
+            return None
+        action = Action.LEFT if error > 0 else Action.RIGHT
+        return self._step(action, decision, reason=f"{decision.reason}; the map turned {math.degrees(turn):+.0f} deg "
+                          f"from {node!r} to {target!r}: {action.value}, {math.degrees(error):+.0f} deg to go")
 
     def _thirds_for(self, node: NodeId, thirds: ThirdsInput) -> ThirdScores:
         if thirds is None:
@@ -388,3 +431,8 @@ class Navigator:
             thirds=thirds, vote=vote, supervisor=decision, visited_nodes=tuple(self._visited),
             relocalisations=self._relocalisations, replans=max(0, self._plans - 1),
             turned_rad=turned_rad, reason=reason)
+
+
+def _wrap(angle_rad: float) -> float:
+    """An angle in [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi

@@ -39,6 +39,7 @@ class MapNode:
     stamp_s: float
     row: int
     true_pose: Optional[Pose2D] = None
+    odom_yaw_rad: Optional[float] = None   # the mapping drive's odometry heading here (rad), if recorded
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ class TopoMap:
             raise MapError(f"no node {node_id!r} in the map")
         a = self._g.nodes[node_id]
         return MapNode(node_id=node_id, keyframe_index=a["keyframe_index"], stamp_s=a["stamp_s"],
-                       row=a["row"], true_pose=a["true_pose"])
+                       row=a["row"], true_pose=a["true_pose"], odom_yaw_rad=a.get("odom_yaw_rad"))
 
     def nodes(self) -> list[MapNode]:
         """All nodes in descriptor-row order."""
@@ -143,6 +144,21 @@ class TopoMap:
     def has_true_poses(self) -> bool:
         """True when every node carries a true pose (simulator maps)."""
         return len(self._ids) > 0 and all(self._g.nodes[i]["true_pose"] is not None for i in self._ids)
+
+    @property
+    def odom_headings(self) -> Optional[dict[int, float]]:
+        """Node id -> the mapping drive's odometry heading (rad) when every node has one, else None
+        (maps from a video or an image folder). Only differences between nodes mean anything."""
+        headings = {i: self._g.nodes[i].get("odom_yaw_rad") for i in self._ids}
+        return headings if self._ids and None not in headings.values() else None
+
+    def set_odom_yaw(self, node_id: int, yaw_rad: Optional[float]) -> None:
+        """Record the mapping drive's odometry heading at a node (None: unknown)."""
+        if node_id not in self._g:
+            raise MapError(f"no node {node_id!r} in the map")
+        if yaw_rad is not None and not (isinstance(yaw_rad, (int, float, np.floating)) and math.isfinite(yaw_rad)):
+            raise MapError(f"odometry heading of node {node_id} must be a finite number, got {yaw_rad!r}")
+        self._g.nodes[node_id]["odom_yaw_rad"] = None if yaw_rad is None else float(yaw_rad)
 
     def loop_closures(self) -> list[MapArc]:
         return [a for a in self.arcs() if a.kind == "loop_closure"]

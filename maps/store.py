@@ -308,6 +308,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
                  "thumbnail": thumb}
         if node.true_pose is not None:
             entry["true_pose"] = _pose_dict(node.true_pose)
+        if node.odom_yaw_rad is not None:
+            entry["odom_yaw_rad"] = node.odom_yaw_rad
         nodes.append(entry)
     arcs = [{"src": a.src, "dst": a.dst, "weight": a.weight, "kind": a.kind, "n_frames": a.n_frames,
              **({"length_m": a.length_m} if a.length_m is not None else {})} for a in topomap.arcs()]
@@ -500,7 +502,10 @@ def _parse_nodes(chk: _Checker, manifest: Mapping, files: Mapping[str, bytes]) -
                 raise chk.fail(f"{where}.true_pose", f"expected a mapping, got {pose!r}")
             pose = Pose2D(*(chk.number(f"{where}.true_pose.{f}", chk.key(f"{where}.true_pose", pose, f))
                             for f in ("x_m", "y_m", "yaw_rad")))
-        nodes.append({"id": node_id, "thumbnail": thumb, "true_pose": pose,
+        odom_yaw = entry.get("odom_yaw_rad")
+        if odom_yaw is not None:
+            odom_yaw = chk.number(f"{where}.odom_yaw_rad", odom_yaw)
+        nodes.append({"id": node_id, "thumbnail": thumb, "true_pose": pose, "odom_yaw_rad": odom_yaw,
                       "keyframe_index": chk.integer(f"{where}.keyframe_index", chk.key(where, entry, "keyframe_index")),
                       "stamp_s": chk.number(f"{where}.stamp_s", chk.key(where, entry, "stamp_s"))})
     return nodes
@@ -631,6 +636,8 @@ def load_map(path: str | Path, expected_identity: Optional[DescriptorIdentity] =
     topomap = TopoMap(int(x.shape[1]))
     for row, node in enumerate(nodes):
         topomap.add_node(x[row], node["keyframe_index"], node["stamp_s"], node["true_pose"], node_id=node["id"])
+        if node["odom_yaw_rad"] is not None:
+            topomap.set_odom_yaw(node["id"], node["odom_yaw_rad"])
     _add_arcs(chk, manifest, topomap)
     state = _decode_state(files[state_name], f"map {path}: {state_name}")
 

@@ -31,6 +31,7 @@ class MapFrame:
     stamp_s: float              # seconds from the start of the source
     rgb: np.ndarray             # (H, W, 3) uint8
     true_pose: Optional[Pose2D] = None
+    odom_yaw_rad: Optional[float] = None   # the base's odometry heading (recordings of a drive)
 
 
 @dataclass(frozen=True)
@@ -84,7 +85,8 @@ class RecordingSource:
         for pos, f in enumerate(self._frames):
             if self.sampling.keep(pos, f.stamp_s, last):
                 last = f.stamp_s
-                yield MapFrame(f.index, f.stamp_s, _shrink(f.load_rgb(), self.sampling.max_width_px), f.true_pose)
+                yield MapFrame(f.index, f.stamp_s, _shrink(f.load_rgb(), self.sampling.max_width_px), f.true_pose,
+                               f.odom_yaw_rad)
 
 
 class ImageFolderSource:

@@ -168,6 +168,9 @@ def build_map_from_frames(frames: Iterable[MapFrame], descriptor: Descriptor, co
     poses = [f.true_pose for f in kept]
     made = build_map(x, config, frame_indices=[f.index for f in kept], stamps_s=[f.stamp_s for f in kept],
                      true_poses=poses if all(p is not None for p in poses) else None)
+    odom = {f.index: f.odom_yaw_rad for f in kept if f.odom_yaw_rad is not None}
+    for node in made.topomap.nodes():   # the drive's heading at each node (navigation's turn hints)
+        made.topomap.set_odom_yaw(node.node_id, odom.get(node.keyframe_index))
     by_index = {f.index: f.rgb for f in kept}
     thumbnails = {node.node_id: by_index[node.keyframe_index] for node in made.topomap.nodes()}
     sample = similarity_sample(x)

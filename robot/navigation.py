@@ -428,7 +428,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
     node_ids = topomap.node_ids
     nodes = np.ascontiguousarray(topomap.descriptors, dtype=np.float32)
-    navigator = Navigator(topomap.graph, node_ids, goal_node, config)
+    navigator = Navigator(topomap.graph, node_ids, goal_node, config,
+                          node_headings=topomap.odom_headings if config.heading_hints else None)
     heading = _Heading()
     timings: list[StepTiming] = []
     plans: list[tuple[int, ...]] = []

@@ -41,6 +41,7 @@ class RecordedFrame:
     stamp_s: float
     path: Path
     true_pose: Optional[Pose2D]
+    odom_yaw_rad: Optional[float] = None   # the base's odometry heading (any fixed frame)
 
     def load_rgb(self) -> np.ndarray:
         bgr = cv2.imread(str(self.path), cv2.IMREAD_COLOR)
@@ -157,7 +158,8 @@ def read_recording(folder: str | Path) -> list[RecordedFrame]:
             path = folder / row["file"]
             if not path.is_file():
                 raise RecordingError(f"{path}: listed in {table} line {line} but missing")
-            frames.append(RecordedFrame(index=int(row["index"]), stamp_s=float(stamp or 0.0), path=path, true_pose=pose))
+            frames.append(RecordedFrame(index=int(row["index"]), stamp_s=float(stamp or 0.0), path=path, true_pose=pose,
+                                        odom_yaw_rad=_opt(row, "odom_yaw_rad", table, line)))
     if not frames:
         raise RecordingError(f"{table}: the recording has no frames")
     return frames

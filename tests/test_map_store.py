@@ -106,6 +106,31 @@ def test_true_poses_are_stored_only_when_given_and_jpeg_thumbnails_are_kept(tmp_
         encode_thumbnail(b"not a jpeg")
 
 
+def test_odometry_headings_round_trip_and_bad_ones_are_refused(tmp_path):
+    route = landmark_route(seed=1, stand_frames=0)
+    made = build_map(route.descriptors, MappingConfig())
+    topomap = made.topomap
+    assert topomap.odom_headings is None                    # none recorded (a video map)
+    ids = topomap.node_ids.tolist()
+    headings = {n: 0.1 * k - 3.0 for k, n in enumerate(ids)}
+    for n in ids[:-1]:
+        topomap.set_odom_yaw(n, headings[n])
+    assert topomap.odom_headings is None                    # only when every node has one
+    topomap.set_odom_yaw(ids[-1], headings[ids[-1]])
+    assert topomap.odom_headings == headings
+    with pytest.raises(MapError, match="finite"):
+        topomap.set_odom_yaw(ids[0], float("nan"))
+    jpegs = {n: encode_thumbnail(frame_image(n)) for n in ids}
+    path = save_map(tmp_path / "m", topomap, identity=IDENTITY, descriptor_state={},
+                    thresholds=made.thresholds, thumbnails=jpegs)
+    assert load_map(path).topomap.odom_headings == headings
+    manifest = json.loads((path / "manifest.json").read_text())
+    manifest["nodes"][1]["odom_yaw_rad"] = "north"
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(MapError, match=r"nodes\[1\]\.odom_yaw_rad: expected a finite number"):
+        load_map(path)
+
+
 @pytest.mark.parametrize("change, words", [
     ({"backend": "anyloc-dinov2-vlad"}, "descriptor backend 'test-projection' does not match"),
     ({"settings": {"layer": 31, "clusters": 4}}, "descriptor settings .* do not match"),

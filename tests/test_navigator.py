@@ -382,3 +382,42 @@ def test_a_policy_returning_a_non_driving_action_is_refused(loop):
     with pytest.raises(NavigationInputError, match="action policy returned"):
         for _ in range(50):
             nav.tick(places.similarities(pose), heading_rad=pose.yaw_rad, policy=lambda node: Action.STOP)
+
+
+def _headings(poses, shift_rad=0.0):
+    return {n: p.yaw_rad + shift_rad for n, p in poses.items()}
+
+
+def test_heading_hints_turn_at_corners_by_the_maps_odometry(loop):
+    graph, poses = loop
+    start = offset(poses[0], forward_m=-0.2, left_m=0.1, yaw_rad=0.1)
+    hints = NavigationConfig(heading_hints=True)
+
+    def drive_with(config, headings):
+        places = SyntheticPlaces(poses, seed=1)       # the same noise for every run
+        return run(Navigator(graph, places.node_ids, 14, config, node_headings=headings), places, start)
+    ep = drive_with(hints, _headings(poses))
+    assert ep.last.state is NavState.ARRIVED and ep.poses[-1].distance_to(poses[14]) < 0.5
+    hinted = [(s, p) for s, p in zip(ep.steps, ep.poses) if "the map turned" in s.reason]
+    # the corner nodes (5 -> 6, 11 -> 12: +45 deg each, both corners) asked for left turns
+    assert hinted and all(s.action is Action.LEFT for s, _ in hinted)
+    assert {(s.current_node, s.target_node) for s, _ in hinted} <= {(4, 5), (5, 6), (10, 11), (11, 12)}
+    # only differences count: another odometry frame gives the same drive
+    shifted = drive_with(hints, _headings(poses, 2.5))
+    assert [s.action for s in shifted.steps] == [s.action for s in ep.steps]
+    # off (the default): the same map headings change nothing
+    plain, plain_without = drive_with(CONFIG, _headings(poses)), drive_with(CONFIG, None)
+    assert [s.action for s in plain.steps] == [s.action for s in plain_without.steps]
+    assert not any("the map turned" in s.reason for s in plain.steps)
+
+
+def test_heading_hints_need_a_heading_for_every_node_and_sane_angles(loop):
+    graph, poses = loop
+    places = SyntheticPlaces(poses, seed=1)
+    partial = {n: h for n, h in _headings(poses).items() if n != 3}
+    with pytest.raises(NavigationInputError, match="node 3"):
+        Navigator(graph, places.node_ids, 14, CONFIG, node_headings=partial)
+    for field_name, value in (("heading_hint_min_deg", 0.0), ("heading_hint_tolerance_deg", 200.0),
+                              ("heading_hints", "yes")):
+        with pytest.raises(ValueError, match=field_name):
+            NavigationConfig(**{field_name: value})
