@@ -223,3 +223,23 @@ def test_replay_refuses_what_is_not_an_episode(serial_run, tmp_path, capsys, mak
     assert replay.main(args) == 2
     err = capsys.readouterr().err
     assert message in err and str(path) in err
+
+
+def test_ours_with_turn_hints_turns_by_the_maps_odometry(serial_run, tmp_path):
+    from dataclasses import replace as dc_replace
+
+    from maps.store import load_map
+    from robot.bench.trials import Trial, run_trial
+
+    out, _ = serial_run
+    episode = json.loads(next((out / "episodes").glob("*_ours_0.json")).read_text())
+    sx, sy, syaw = load_world(TINY).routes.evaluation["short"].start
+    # under the map's own appearance from the route's start, so that it certainly drives
+    trial = dc_replace(Trial(**episode["trial"]), method="ours-hints", trace_png=None, appearance_seed=0,
+                       start_x_m=sx, start_y_m=sy, start_yaw_deg=syaw)
+    assert load_map(trial.map_dir).topomap.odom_headings is not None   # the harness's maps carry them
+    log = tmp_path / "hints.jsonl"
+    result = run_trial(trial, step_log=str(log))
+    assert result["trial"]["method"] == "ours-hints" and result["metrics"]["steps"] > 0
+    reasons = [json.loads(line)["reason"] for line in log.read_text().splitlines()]
+    assert any("the map turned" in r for r in reasons)

@@ -37,7 +37,7 @@ from typing import Optional
 
 from tqdm import tqdm
 
-from robot.bench.trials import METHODS, Trial, plan_trials, run_trial, worker_init
+from robot.bench.trials import DEFAULT_METHODS, METHODS, Trial, plan_trials, run_trial, worker_init
 
 DEFAULT_ROUTES = ("hospital:easy", "hospital:moderate", "hospital:hard", "office:main")
 DEFAULT_SPARSITY_LEVELS = (0.25, 0.5, 0.75)
@@ -57,7 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="base seed of the trials' offsets (default 0)")
     parser.add_argument("--routes", default=",".join(DEFAULT_ROUTES),
                         help="comma-separated WORLD:ROUTE list (default: %(default)s); WORLD may be a world file")
-    parser.add_argument("--methods", default=",".join(METHODS), help="comma-separated: ours, sptm (default both)")
+    parser.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                        help="comma-separated: ours, sptm, ours-hints (ours with the turn hints from the map's "
+                             "odometry; default: ours,sptm)")
     parser.add_argument("--sparsity", default=",".join(f"{s:g}" for s in DEFAULT_SPARSITY_LEVELS),
                         help="map sparsity levels of the study (default %(default)s); 'none' skips the study")
     parser.add_argument("--sparsity-route", default="hospital:moderate",
@@ -280,6 +282,13 @@ def main(args: argparse.Namespace) -> int:
     try:
         build = not args.report_only
         maps = {world: ensure_map(world, default_sparsity, config, out, progress, build) for world, _ in routes}
+        if "ours-hints" in methods:
+            from maps.store import load_map
+
+            for map_dir in maps.values():
+                if load_map(map_dir).topomap.odom_headings is None:
+                    raise PaperBenchError(f"{map_dir}: the map has no odometry headings (made by an older version); "
+                                          "ours-hints needs them: delete the folder to rebuild it")
         baseline = None
         if "sptm" in methods:
             hospital = maps.get(BASELINE_WORLD) or ensure_map(BASELINE_WORLD, default_sparsity, config, out, progress,

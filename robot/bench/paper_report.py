@@ -22,9 +22,10 @@ PAPER_SR = {
     "sptm": {"Easy 10 m": 1.00, "Moderate 20 m": 0.64, "Hard 35 m": 0.47, "Office 40 m": 0.25, "Average": 0.59},
 }
 METHOD_LABELS = {"ours": "Ours (AnyLoc-style VLAD + two-cycle voter)",
+                 "ours-hints": "Ours + turn hints from the map's odometry",
                  "sptm": "SPTM-style baseline (learned action head)"}
 PAPER_LABELS = {"ours": "Paper: Ours", "sptm": "Paper: ResNet+AnyLoc"}
-COLORS = {"ours": (0.12, 0.47, 0.71), "sptm": (0.85, 0.37, 0.01)}
+COLORS = {"ours": (0.12, 0.47, 0.71), "ours-hints": (0.17, 0.63, 0.17), "sptm": (0.85, 0.37, 0.01)}
 
 
 def _write(path: Path, text: str) -> Path:
@@ -103,7 +104,7 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
     for e in main:
         if _route_id(e) not in routes:
             routes.append(_route_id(e))
-    methods = [m for m in ("ours", "sptm") if m in (planned_methods or ())
+    methods = [m for m in ("ours", "ours-hints", "sptm") if m in (planned_methods or ())
                or any(e["trial"]["method"] == m for e in main)]
     summary = {f"{w}:{r}": {m: summarise_episodes([e for e in main if _route_id(e) == (w, r)
                                                     and e["trial"]["method"] == m]) for m in methods}
@@ -155,7 +156,7 @@ def _paper_table(routes, methods, summary) -> str:
             average = f"{np.mean([c['success_rate'] for c in cells]):.2f} ({np.mean([c['spl'] for c in cells]):.2f})"
         lines.append(f"| {METHOD_LABELS[m]} | " + " | ".join(_cell(c) for c in cells) + f" | {average} |")
     for m in methods:
-        paper = PAPER_SR[m]
+        paper = PAPER_SR.get(m, {})
         if any(c in paper for c in cols):
             shown = [paper[c] for c in cols if c in paper]
             # the paper's own average for its four routes, else the mean over the columns shown
@@ -239,7 +240,7 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
         x = np.arange(len(cols)) + (k - (len(methods) - 1) / 2) * width
         sr = [summary[f"{w}:{r}"][m].get("success_rate", np.nan) for w, r in routes]   # nan: none finished
         ax.bar(x, sr, width * 0.9, color=COLORS[m], label=METHOD_LABELS[m])
-        paper = [PAPER_SR[m].get(c) for c in cols]
+        paper = [PAPER_SR.get(m, {}).get(c) for c in cols]
         px = [xi for xi, p in zip(x, paper) if p is not None]
         ax.scatter(px, [p for p in paper if p is not None], marker="_", s=400, color="black", zorder=3,
                    label="paper" if k == 0 else None)

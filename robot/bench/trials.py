@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Optional, Sequence
 
@@ -31,7 +31,11 @@ APPEARANCE_SEED_BASE = 1
 #: Keep every n-th true pose in the results (trajectory plots); 10 = once per simulated second.
 TRAJECTORY_EVERY = 10
 
-METHODS = ("ours", "sptm")
+#: "ours": the two-cycle voter with the configuration as given; "sptm": the learned baseline;
+#: "ours-hints": ours with the turn hints from the map's odometry on (navigation.heading_hints).
+METHODS = ("ours", "sptm", "ours-hints")
+#: What the harness runs unless --methods says otherwise (the paper's comparison).
+DEFAULT_METHODS = ("ours", "sptm")
 
 
 @dataclass(frozen=True)
@@ -40,7 +44,7 @@ class Trial:
 
     world: str                 # world name or path
     route: str
-    method: str                # "ours" (two-cycle voter) or "sptm" (learned baseline)
+    method: str                # "ours" (two-cycle voter), "sptm" (learned baseline), "ours-hints"
     trial: int                 # 0-based trial number on this route
     map_dir: str
     appearance_seed: int
@@ -143,13 +147,16 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
 
         head = _cached(("head", trial.baseline_path), lambda: load_baseline(trial.baseline_path))
         policy = _cached(("policy", trial.baseline_path, trial.map_dir), lambda: SptmPolicy(head, loaded))
-    elif trial.method != "ours":
+    elif trial.method not in METHODS:
         raise ValueError(f"unknown method {trial.method!r} (methods: {', '.join(METHODS)})")
+    navigation = config.navigation
+    if trial.method == "ours-hints":
+        navigation = replace(navigation, heading_hints=True)
     start = Pose2D(trial.start_x_m, trial.start_y_m, math.radians(trial.start_yaw_deg))
     try:
         result = run_sim_navigation(spec, trial.map_dir, descriptor, route=trial.route, start=start,
                                     appearance_seed=trial.appearance_seed, sim_config=config.sim,
-                                    navigation=config.navigation, episode=config.episode,
+                                    navigation=navigation, episode=config.episode,
                                     loaded_map=loaded, shortest_length_m=trial.shortest_length_m,
                                     progress=progress, trace_png=trial.trace_png, action_policy=policy,
                                     step_log=step_log, video_path=video_path)
