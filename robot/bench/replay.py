@@ -116,7 +116,8 @@ def main(args: argparse.Namespace) -> int:
         print("\n".join(lines[-args.events:]))
     m = result["metrics"]
     print(f"\n{trial.key}: {'success' if m['success'] else 'failure'}, {m['steps']} steps, end {m['end']}, "
-          f"final distance {m['final_distance_m']} m: {m['reason']}")
+          f"final distance {m['final_distance_m']} m, {m['relocalisations']} re-localisations, "
+          f"{m['collisions']} collisions: {m['reason']}")
     written = [str(log)] if log.is_file() else []
     written += [str(p) for p in (args.video, args.trace) if p is not None]
     if written:
