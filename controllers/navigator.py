@@ -49,7 +49,7 @@ from typing import Callable, Hashable, Mapping, Optional, Sequence, Tuple, Union
 import networkx as nx
 import numpy as np
 
-from robot.hal import VelocityCommand
+from robot.hal import VelocityCommand, wrap_angle
 
 from controllers.actions import Action, action_velocity
 from controllers.config import NavigationConfig
@@ -373,10 +373,10 @@ class Navigator:
         target = decision.target_node
         if (node, target) == self._hint_done or node == target:
             return None
-        turn = _wrap(self._headings[target] - self._headings[node])
+        turn = wrap_angle(self._headings[target] - self._headings[node])
         if abs(turn) < math.radians(self.config.heading_hint_min_deg):
             return None
-        error = _wrap(heading_then + turn - float(heading_rad))
+        error = wrap_angle(heading_then + turn - float(heading_rad))
         if abs(error) <= math.radians(self.config.heading_hint_tolerance_deg):
             self._hint_done = (node, target)
             self.voter.reset()
@@ -431,8 +431,3 @@ class Navigator:
             thirds=thirds, vote=vote, supervisor=decision, visited_nodes=tuple(self._visited),
             relocalisations=self._relocalisations, replans=max(0, self._plans - 1),
             turned_rad=turned_rad, reason=reason)
-
-
-def _wrap(angle_rad: float) -> float:
-    """An angle in [-pi, pi)."""
-    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi

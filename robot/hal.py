@@ -100,6 +100,11 @@ class SensorFrame:
     fault: Optional[str] = None
 
 
+def wrap_angle(angle_rad: float) -> float:
+    """An angle in radians brought into [-pi, pi)."""
+    return (angle_rad + math.pi) % (2.0 * math.pi) - math.pi
+
+
 @dataclass(frozen=True)
 class Pose2D:
     """A planar pose in the world frame: metres and radians (yaw counter-clockwise from +x)."""

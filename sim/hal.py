@@ -27,7 +27,7 @@ import pybullet as p
 import pybullet_data
 
 from robot.hal import (GroundTruth, HalError, Odometry, Pose2D, RobotBase, SensorFrame, VelocityCommand,
-                       VelocityLimits, STOP)
+                       VelocityLimits, STOP, wrap_angle)
 from sim.camera import Camera, CameraSpec, check_light
 from sim.limo import LEFT_WHEELS, RIGHT_WHEELS, TRACK_M, WHEEL_RADIUS_M, Limo, body_twist
 
@@ -101,10 +101,6 @@ class SimConfig:
 
 def _is_number(value: Any) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool)
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 @dataclass
@@ -301,7 +297,7 @@ class SimLimo(RobotBase):
         mid = o.yaw_rad + dyaw / 2.0          # midpoint rule: exact for a constant arc
         o.x_m += ds * math.cos(mid)
         o.y_m += ds * math.sin(mid)
-        o.yaw_rad = _wrap(o.yaw_rad + dyaw)
+        o.yaw_rad = wrap_angle(o.yaw_rad + dyaw)
         o.left_m += dl
         o.right_m += dr
         return dl, dr

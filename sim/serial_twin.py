@@ -55,7 +55,7 @@ import numpy as np
 import pybullet as p
 
 from robot.camera_source import CameraError, CameraFrame
-from robot.hal import GroundTruth, HalError, Pose2D, VelocityCommand
+from robot.hal import GroundTruth, HalError, Pose2D, VelocityCommand, wrap_angle
 from robot.limo_emulator import BaseState, EmulatorConfig, LimoEmulator
 from robot.limo_serial import LimoSerialBase, LimoSerialConfig
 from sim.camera import Camera, CameraSpec, check_light
@@ -108,10 +108,6 @@ class ModelTiming:
     renders: int              #: camera renders through this model
     render_busy_s: float      #: wall time spent rendering
     max_render_s: float       #: the slowest render
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 def render_light_of(world: Any, appearance_seed: int) -> dict:
@@ -228,7 +224,7 @@ class PyBulletBaseModel:
         v = ((left - prev.left_m) + (right - prev.right_m)) / 2.0 / elapsed_s
         c, s = math.cos(self.start.yaw_rad), math.sin(self.start.yaw_rad)
         dx, dy = pose.x_m - self.start.x_m, pose.y_m - self.start.y_m
-        return BaseState(x_m=c * dx + s * dy, y_m=-s * dx + c * dy, yaw_rad=_wrap(pose.yaw_rad - self.start.yaw_rad),
+        return BaseState(x_m=c * dx + s * dy, y_m=-s * dx + c * dy, yaw_rad=wrap_angle(pose.yaw_rad - self.start.yaw_rad),
                          v_mps=v, w_radps=float(frame.imu_yaw_rate_radps), left_m=left, right_m=right,
                          accel_mps2=(v - prev.v_mps) / elapsed_s)
 

@@ -18,7 +18,7 @@ from typing import Sequence
 
 import numpy as np
 
-from robot.hal import Pose2D, VelocityCommand
+from robot.hal import Pose2D, VelocityCommand, wrap_angle
 
 
 @dataclass(frozen=True)
@@ -35,10 +35,6 @@ class TeleopConfig:
                      "heading_gain", "goal_tolerance_m"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class WaypointTeleop:
@@ -109,7 +105,7 @@ class WaypointTeleop:
         target = self.point_at(self._progress_m + cfg.lookahead_m)
         to_end = math.hypot(*(self._pts[-1] - xy))
         bearing = math.atan2(target[1] - pose.y_m, target[0] - pose.x_m)
-        err = _wrap(bearing - pose.yaw_rad)
+        err = wrap_angle(bearing - pose.yaw_rad)
         w = max(-cfg.max_w_radps, min(cfg.max_w_radps, cfg.heading_gain * err))
         if abs(err) > cfg.turn_in_place_rad:
             return VelocityCommand(0.0, w)

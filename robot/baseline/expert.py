@@ -19,7 +19,7 @@ import numpy as np
 
 from controllers.actions import Action
 from maps.graph import TopoMap
-from robot.hal import Pose2D
+from robot.hal import Pose2D, wrap_angle
 from robot.baseline.track import TrackError, WalkthroughTrack
 
 #: the classifier's classes, in the order of its outputs
@@ -51,17 +51,13 @@ class ExpertConfig:
             raise ExpertError(f"max_targets must be an integer >= 1, got {self.max_targets!r}")
 
 
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % (2.0 * math.pi) - math.pi
-
-
 def heading_error_rad(pose: Pose2D, target: Pose2D, near_m: float = ExpertConfig.near_m) -> float:
     """Signed angle (rad, counter-clockwise positive) the robot must turn to face ``target``:
     the bearing to the target's position, or the target's own yaw when closer than ``near_m``."""
     dx, dy = target.x_m - pose.x_m, target.y_m - pose.y_m
     if math.hypot(dx, dy) < near_m:
-        return _wrap(target.yaw_rad - pose.yaw_rad)
-    return _wrap(math.atan2(dy, dx) - pose.yaw_rad)
+        return wrap_angle(target.yaw_rad - pose.yaw_rad)
+    return wrap_angle(math.atan2(dy, dx) - pose.yaw_rad)
 
 
 def expert_action(pose: Pose2D, target: Pose2D, config: ExpertConfig = ExpertConfig()) -> Action:

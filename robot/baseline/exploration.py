@@ -31,7 +31,7 @@ from maps.store import LoadedMap
 from robot.baseline.expert import CLASSES, ExpertConfig, ExpertError, NodeTargets, expert_action
 from robot.baseline.features import FeatureSettings, ImageFeatures, as_thumbnail
 from robot.baseline.track import WalkthroughTrack
-from robot.hal import Pose2D
+from robot.hal import Pose2D, wrap_angle
 from sim.hal import SimConfig, SimLimo
 from sim.world_spec import WorldSpec, apply_appearance, clearance_m
 
@@ -130,7 +130,7 @@ def _start_pose(track: WalkthroughTrack, spec: WorldSpec, config: ExplorationCon
         x, y = x - offset * math.sin(heading), y + offset * math.cos(heading)
         yaw = heading + math.radians(rng.uniform(-config.start_yaw_deg, config.start_yaw_deg))
         if clearance_m(spec, [(x, y)])[0][0] >= config.min_clearance_m:
-            return Pose2D(x, y, (yaw + math.pi) % (2.0 * math.pi) - math.pi)
+            return Pose2D(x, y, wrap_angle(yaw))
     raise ExplorationError(f"world {spec.name!r}: found no start {config.min_clearance_m} m clear of walls "
                            "and props near the walkthrough in 50 tries")
 
