@@ -78,6 +78,7 @@ class CameraSource:
         self._ended = False
         self._thread: Optional[threading.Thread] = None
         self._stop = threading.Event()
+        self._grabbed = threading.Event()    # set on the first frame, an error or the end
 
     @property
     def is_open(self) -> bool:
@@ -170,14 +171,27 @@ class CameraSource:
             except CameraError as exc:
                 with self._lock:
                     self._error = str(exc)
+                self._grabbed.set()
                 return
             if frame is None:
+                self._grabbed.set()
                 return
             with self._lock:
                 self._latest = frame
+            self._grabbed.set()
             if period:
                 next_due += period
                 self._stop.wait(max(0.0, next_due - time.monotonic()))
+
+    def wait_for_frame(self, timeout_s: float) -> CameraFrame:
+        """Block until the background grabber has a frame (after :meth:`start`); raises
+        :class:`CameraError` naming the camera when none comes within ``timeout_s``."""
+        self._grabbed.wait(timeout_s)
+        frame = self.latest()
+        if frame is None:
+            raise CameraError(f"camera {self.source!r} delivered no frame within {timeout_s:g} s"
+                              + (" (the video has no frames)" if self._grabbed.is_set() else ""))
+        return frame
 
     def latest(self) -> Optional[CameraFrame]:
         """The newest frame grabbed in the background (None before the first).

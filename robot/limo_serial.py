@@ -37,6 +37,8 @@ from robot.limo_protocol import (ERROR_BITS_SEVERE, ControlModeCommand, FramePar
                                  WheelOdometry, describe_error_bits, encode_enable, encode_motion)
 from robot.state_estimate import PlanarEstimate, StateEstimateConfig, StateEstimator
 
+#: How long connect() waits for the camera's first frame (a UVC camera takes a moment to open).
+CAMERA_FIRST_FRAME_TIMEOUT_S = 5.0
 PORT_HINT = ("the Limo's Jetson uses /dev/ttyTHS1 (some Orin units /dev/ttyTHS0); a USB-serial "
              "adapter shows up as /dev/ttyUSB0; list ports with `python -m serial.tools.list_ports`")
 
@@ -213,6 +215,9 @@ class LimoSerialBase(RobotBase):
             self._writer.start()
             if self._camera is not None:
                 self._camera.start()
+                # navigation needs an image in the very first frame: a camera that is still
+                # opening must not look like a camera that delivers nothing
+                self._camera.wait_for_frame(CAMERA_FIRST_FRAME_TIMEOUT_S)
             self._wait_for_feedback()
         except BaseException:
             self.close()

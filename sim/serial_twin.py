@@ -355,6 +355,15 @@ class SimCameraSource:
             next_due = max(next_due + period, time.monotonic())
             self._stop.wait(max(0.0, next_due - time.monotonic()))
 
+    def wait_for_frame(self, timeout_s: float) -> CameraFrame:
+        """Block until the render thread has a frame (as :meth:`robot.camera_source.CameraSource.wait_for_frame`)."""
+        deadline = time.monotonic() + timeout_s
+        while (frame := self.latest()) is None:
+            if time.monotonic() >= deadline:
+                raise CameraError(f"simulated camera delivered no frame within {timeout_s:g} s")
+            time.sleep(0.005)
+        return frame
+
     def latest(self) -> Optional[CameraFrame]:
         """The newest frame (``None`` before the first); raises :class:`CameraError` if rendering failed."""
         with self._lock:

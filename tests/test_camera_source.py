@@ -99,3 +99,16 @@ def test_read_before_open_is_an_error(video):
         cam.open()
     cam.close()
     cam.close()
+
+
+def test_wait_for_frame_returns_the_first_frame_or_names_the_camera(video):
+    cam = CameraSource(video, realtime=True)
+    try:
+        with pytest.raises(CameraError, match=r"route\.avi.*delivered no frame within 0\.05 s"):
+            cam.wait_for_frame(0.05)          # not started: nothing grabs
+        cam.start()
+        first = cam.wait_for_frame(5.0)       # right after start, without polling
+        assert first.index in (0, 1)
+        assert np.abs(first.rgb.reshape(-1, 3).mean(axis=0) - RGB_EXPECTED[first.index]).max() < 12
+    finally:
+        cam.close()
