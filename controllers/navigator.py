@@ -22,16 +22,21 @@ States (:class:`NavState`):
 * SEARCHING: no third has seen the target for ``no_vote_patience_ticks`` more ticks; turns
   counter-clockwise in place until one does (back to NAVIGATING), or re-localises after a
   full turn.
-* RELOCALISING: the supervisor reported the robot lost; global localisation as in
-  LOCALISING, but only nodes from which the goal is reachable count, and the stretch of the
-  old plan around the last node is accepted as the best of the map above ``t_lost`` (other
-  nodes need ``t_milestone``); then a new plan from the node found (``relocalisations``).
+* RELOCALISING: the supervisor reported the robot lost; localisation as in LOCALISING, but
+  only nodes from which the goal is reachable count, and the stretch of the old plan around
+  the last node is accepted as the best of the map above ``t_lost`` (other nodes need
+  ``t_milestone``); then a new plan from the node found (``relocalisations``). The search is
+  local first: only nodes within ``localiser.relocalise_hops`` arcs of the anchor (the last node
+  confirmed by driving, or the initial localisation) count, and only when a full turn finds
+  nothing there does it go on over the whole map (then without the lower threshold for the plan's stretch). With ``node_headings``, a node of the local
+  search counts only while the robot faces (by odometry) the way the mapping drive faced there,
+  relative to the anchor (``localiser.relocalise_heading_tolerance_deg``).
 * (learned policy) with ``policy`` passed to :meth:`Navigator.tick`, the action while
   NAVIGATING comes from ``policy(target_node)`` instead of the voter (the SPTM-style baseline:
   same localisation, planning and node switching, a classifier picks the action); there is no
   weak vote and no search turn then, the supervisor's LOST still re-localises.
-* (turn hints) with ``node_headings`` (the mapping drive's odometry heading per node) and
-  ``heading_hints`` on: after a node is confirmed, when the drive turned from it to the target by
+* (turn hints) with ``node_headings`` (the mapping drive's odometry heading per node; pass them
+  whenever the map has them, each use has its own switch) and ``heading_hints`` on: after a node is confirmed, when the drive turned from it to the target by
   at least ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on the odometry
   heading) before the voter steers again: at corners the target is beside the field of view.
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero.
@@ -144,7 +149,7 @@ class Navigator:
         self.filter = SimilarityFilter(len(self.node_ids), config.filter)
         self.voter = TwoCycleVoter(config.thresholds.t_limited_control,
                                    hold_executed=config.hold_action_between_votes)
-        undirected = graph.to_undirected(as_view=True)
+        undirected = self._undirected = graph.to_undirected(as_view=True)
         hops = config.localiser.neighbourhood_hops
         self._neighbourhoods = {n: frozenset(nx.single_source_shortest_path_length(undirected, n, cutoff=hops))
                                 for n in self.node_ids}
@@ -172,6 +177,10 @@ class Navigator:
             if bad:
                 raise NavigationInputError(f"node_headings has no finite heading for node {bad[0]!r}")
             self._headings = {n: float(h) for n, h in headings.items()}
+        self._anchor: Optional[NodeId] = None     # last node confirmed by driving (or the first localisation)
+        self._anchor_heading: Optional[float] = None   # the odometry heading when the anchor was confirmed
+        self._local: Optional[np.ndarray] = None  # columns a local re-localisation may choose, or None (global)
+        self._heading_offsets: Optional[tuple] = None   # (anchor, map heading of each column minus the anchor's)
         self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
         self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
 
@@ -252,12 +261,26 @@ class Navigator:
             # look-alike (the first localisation keeps every node, so that an unreachable goal
             # is reported as such).
             row = np.where(self._reaches_goal, row, -1.0)
+            if self._local is not None:
+                row = np.where(self._local & self._facing_as_mapped(heading_rad), row, -1.0)
         result = self._localiser.tick(row, heading_rad)
+        if result.status is LocaliserStatus.FAILED and self._local is not None:
+            # nothing near the anchor in a full turn: search the whole map from here on, on the
+            # strict terms (t_milestone) only: the plan's stretch near the anchor was just searched,
+            # and a stretch of a plan made after an earlier wrong re-localisation is no evidence
+            self._local = None
+            self._localiser = self._new_localiser((), first_view=False)
+            return self._step(Action.SEARCH_ROTATE, turned_rad=result.turned_rad,
+                              reason=f"no node within {self.config.localiser.relocalise_hops} arcs of node "
+                                     f"{self._anchor!r} matched ({result.reason}); searching the whole map")
         if result.status is LocaliserStatus.FAILED:
             return self._fail(result.reason, turned_rad=result.turned_rad)
         if result.status is not LocaliserStatus.LOCALISED:
             return self._step(result.action, reason=result.reason, turned_rad=result.turned_rad)
         start = result.node
+        if self._state is NavState.LOCALISING:
+            self._anchor, self._anchor_heading = start, heading_rad
+        self._local = None
         self._remember(start)
         try:
             plan = self.planner.plan(start, self.goal_node)
@@ -289,10 +312,36 @@ class Navigator:
             expected = self._plan[max(0, i - sup.window_behind): i + sup.window_ahead + 2]
         self._supervisor = None
         self._hint = None
+        self._local = self._local_columns()
         self._localiser = self._new_localiser(expected, first_view=False)
         self._state = NavState.RELOCALISING
+        where = ("globally" if self._local is None else
+                 f"near node {self._anchor!r} ({int(self._local.sum())} nodes within "
+                 f"{self.config.localiser.relocalise_hops} arcs)")
         return self._step(Action.NONE, decision=decision,
-                          reason=f"{why}; re-localising globally ({self._relocalisations})")
+                          reason=f"{why}; re-localising {where} ({self._relocalisations})")
+
+    def _facing_as_mapped(self, heading_rad: Optional[float]) -> np.ndarray:
+        """Per column: whether the robot faces the way the mapping drive faced at that node,
+        relative to the anchor (all True without headings, or with the gate off)."""
+        tolerance = self.config.localiser.relocalise_heading_tolerance_deg
+        if (self._headings is None or heading_rad is None or self._anchor_heading is None
+                or tolerance >= 180.0):
+            return np.ones(len(self.node_ids), dtype=bool)
+        if self._heading_offsets is None or self._heading_offsets[0] != self._anchor:
+            base = self._headings[self._anchor]
+            self._heading_offsets = (self._anchor, np.array([self._headings[n] - base for n in self.node_ids]))
+        expected = self._anchor_heading + self._heading_offsets[1]
+        error = np.angle(np.exp(1j * (float(heading_rad) - expected)))     # wrapped to (-pi, pi]
+        return np.abs(error) <= math.radians(tolerance)
+
+    def _local_columns(self) -> Optional[np.ndarray]:
+        """The columns within ``relocalise_hops`` arcs of the anchor (None: search globally)."""
+        hops = self.config.localiser.relocalise_hops
+        if hops == 0 or self._anchor is None:
+            return None
+        near = nx.single_source_shortest_path_length(self._undirected, self._anchor, cutoff=hops)
+        return np.array([n in near for n in self.node_ids])
 
     # -- navigation -----------------------------------------------------------------------
 
@@ -300,6 +349,7 @@ class Navigator:
                        heading_rad: Optional[float], policy: PolicyInput = None) -> NavigationStep:
         decision = self._supervisor.tick(row)
         if decision.confirmed_node is not None:
+            self._anchor, self._anchor_heading = decision.confirmed_node, heading_rad
             self._hint = None if heading_rad is None else (decision.confirmed_node, float(heading_rad))
             self._remember(decision.confirmed_node)
             self.voter.reset()

@@ -99,6 +99,8 @@ class VoteResult:
     stored: Optional[Third]        # the vote stored by the first cycle of the pair, if any
     best_score: float              # best third score this cycle
     reason: str
+    #: the three scores the vote was taken on (the contrast when the voter was given one)
+    scores: Optional[ThirdScores] = None
 
 
 def contrast_thirds(scores: np.ndarray) -> np.ndarray:
@@ -182,15 +184,15 @@ class TwoCycleVoter:
             dropped = f"; dropped stored {stored.value}" if stored else ""
             return VoteResult(Action.NONE, VoteKind.NO_VOTE, None, stored, best,
                               f"best third {third.value} {best:.3f} <= t_limited_control "
-                              f"{self.t_limited_control:.3f}{dropped}")
+                              f"{self.t_limited_control:.3f}{dropped}", scores)
         if stored is None:
             self._stored = vote
             action = self._held if self.hold_executed else Action.NONE
             return VoteResult(action, VoteKind.STORED, vote, None, best,
-                              f"stored {vote.value} ({best:.3f}); holding {action.value}")
+                              f"stored {vote.value} ({best:.3f}); holding {action.value}", scores)
         self._stored = None
         action = combine_votes(stored, vote)
         self._held = action
         kind = VoteKind.CONFLICT if action is Action.NONE else VoteKind.EXECUTED
         return VoteResult(action, kind, vote, stored, best,
-                          f"{stored.value} then {vote.value} -> {action.value}")
+                          f"{stored.value} then {vote.value} -> {action.value}", scores)

@@ -429,7 +429,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     node_ids = topomap.node_ids
     nodes = np.ascontiguousarray(topomap.descriptors, dtype=np.float32)
     navigator = Navigator(topomap.graph, node_ids, goal_node, config,
-                          node_headings=topomap.odom_headings if config.heading_hints else None)
+                          node_headings=topomap.odom_headings)
     heading = _Heading()
     timings: list[StepTiming] = []
     plans: list[tuple[int, ...]] = []

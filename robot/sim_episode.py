@@ -142,6 +142,8 @@ def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray) -> di
             "current_node": s.current_node, "target_node": s.target_node,
             "current_score": r3(s.current_score), "target_score": r3(s.target_score),
             "thirds": None if s.thirds is None else [r3(s.thirds.left), r3(s.thirds.middle), r3(s.thirds.right)],
+            "vote_scores": None if s.vote is None or s.vote.scores is None else
+            [r3(s.vote.scores.left), r3(s.vote.scores.middle), r3(s.vote.scores.right)],
             "best_raw_node": int(node_ids[best]), "best_raw_score": r3(sims[best]),
             "relocalisations": s.relocalisations, "reason": s.reason}
 

@@ -70,7 +70,7 @@ def serial_run(tmp_path_factory):
                           exploration=ExplorationConfig(episodes=6, steps_per_episode=15, appearances=1))
     argv = ["--routes", f"{TINY}:short", "--methods", "ours,sptm", "--trials", "1", "--sparsity", "0.5,0.75",
             "--sparsity-route", f"{TINY}:short", "--workers", "1", "--quiet", "--out", str(out),
-            "--baseline", str(head)]
+            "--baseline", str(head), "--step-logs"]
     assert paper.main(_args(*argv)) == 0
     return out, argv
 
@@ -111,6 +111,11 @@ def test_the_harness_writes_results_table_and_pictures(serial_run):
     # a trace picture for every episode that drove (one that ended in an error before driving has none)
     drove = {Path(e["trial"]["trace_png"]).name for e in episodes if e["metrics"]["steps"] > 0}
     assert drove and {p.name for p in (out / "traces").glob("*.png")} == drove
+    # --step-logs: a per-step log of every episode that drove, one line per step
+    for e in episodes:
+        log = paper.step_log_path(out, paper.Trial(**e["trial"]))
+        if e["metrics"]["steps"] > 0:
+            assert len(log.read_text().splitlines()) == e["metrics"]["steps"]
 
 
 def test_parallel_workers_give_the_same_results_and_reruns_resume(serial_run, tmp_path):
@@ -243,3 +248,29 @@ def test_ours_with_turn_hints_turns_by_the_maps_odometry(serial_run, tmp_path):
     assert result["trial"]["method"] == "ours-hints" and result["metrics"]["steps"] > 0
     reasons = [json.loads(line)["reason"] for line in log.read_text().splitlines()]
     assert any("the map turned" in r for r in reasons)
+    # the ablation without them steers by the thirds alone
+    result = run_trial(dc_replace(trial, method="ours-no-hints"), step_log=str(log))
+    assert result["trial"]["method"] == "ours-no-hints" and result["metrics"]["steps"] > 0
+    assert not any("the map turned" in json.loads(line)["reason"] for line in log.read_text().splitlines())
+
+
+def test_episodes_record_the_configuration_and_another_one_is_not_reused(serial_run, tmp_path):
+    from dataclasses import replace as dc_replace
+
+    from robot.bench.trials import Trial, config_digest
+    from robot.settings import load_stack_config
+
+    out, _ = serial_run
+    default = load_stack_config(None)
+    changed_yaml = tmp_path / "changed.yaml"
+    changed_yaml.write_text("navigation:\n  max_relocalisations: 2\n")
+    changed = load_stack_config(changed_yaml)
+    assert config_digest(default) == config_digest(load_stack_config(None))    # a fingerprint of values
+    assert config_digest(changed) != config_digest(default)
+
+    episode = json.loads(next((out / "episodes").glob("*_ours_0.json")).read_text())
+    trial = Trial(**episode["trial"])
+    assert trial.config_digest == config_digest(default)
+    assert paper._reusable(out, trial) is not None
+    # the same trial under another configuration must run again, not reuse the old episode
+    assert paper._reusable(out, dc_replace(trial, config_digest=config_digest(changed))) is None

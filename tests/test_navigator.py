@@ -392,6 +392,8 @@ def test_heading_hints_turn_at_corners_by_the_maps_odometry(loop):
     graph, poses = loop
     start = offset(poses[0], forward_m=-0.2, left_m=0.1, yaw_rad=0.1)
     hints = NavigationConfig(heading_hints=True)
+    assert CONFIG.heading_hints                          # on by default (used where the map has headings)
+    off = NavigationConfig(heading_hints=False)
 
     def drive_with(config, headings):
         places = SyntheticPlaces(poses, seed=1)       # the same noise for every run
@@ -405,8 +407,8 @@ def test_heading_hints_turn_at_corners_by_the_maps_odometry(loop):
     # only differences count: another odometry frame gives the same drive
     shifted = drive_with(hints, _headings(poses, 2.5))
     assert [s.action for s in shifted.steps] == [s.action for s in ep.steps]
-    # off (the default): the same map headings change nothing
-    plain, plain_without = drive_with(CONFIG, _headings(poses)), drive_with(CONFIG, None)
+    # off: the same map headings change nothing (here: no re-localisation, where they gate views)
+    plain, plain_without = drive_with(off, _headings(poses)), drive_with(off, None)
     assert [s.action for s in plain.steps] == [s.action for s in plain_without.steps]
     assert not any("the map turned" in s.reason for s in plain.steps)
 
@@ -421,3 +423,85 @@ def test_heading_hints_need_a_heading_for_every_node_and_sane_angles(loop):
                               ("heading_hints", "yes")):
         with pytest.raises(ValueError, match=field_name):
             NavigationConfig(**{field_name: value})
+
+
+def _lost_then_relocalise(config: NavigationConfig, during: np.ndarray, max_ticks: int = 800,
+                          node_headings=None, lost_heading: float = 0.0):
+    """Chain 0 -> ... -> 9 (goal 9): localise at node 0 (heading 0), get lost (the view shows
+    node 8, far ahead) having turned to ``lost_heading``, then re-localise while the view is
+    ``during``; returns the steps."""
+    graph, _ = chain(10)
+    nav = Navigator(graph, list(range(10)), 9, config, node_headings=node_headings)
+    thirds = lambda node: (0.2, 0.9, 0.2)  # noqa: E731
+    at_0 = np.full(10, 0.1)
+    at_0[0] = 0.9
+    elsewhere = np.full(10, 0.1)
+    elsewhere[8] = 0.95
+    heading, steps = 0.0, []
+    for _ in range(5):
+        steps.append(nav.tick(at_0, thirds=thirds, heading_rad=heading))
+    assert nav.state is NavState.NAVIGATING
+    heading = lost_heading
+    while nav.state is NavState.NAVIGATING:
+        steps.append(nav.tick(elsewhere, thirds=thirds, heading_rad=heading))
+        assert len(steps) < 200, "never lost"
+    for _ in range(max_ticks):
+        step = nav.tick(during, thirds=thirds, heading_rad=heading)
+        steps.append(step)
+        heading += step.velocity.w_radps * DT_S
+        if nav.state is not NavState.RELOCALISING:
+            break
+    return steps
+
+
+def test_relocalisation_prefers_the_nodes_near_the_last_confirmed_one():
+    # the view matches node 8 (8 arcs from node 0, where the robot last was) best, and node 4
+    # (on the stretch it was driving) less well: under other lighting a far look-alike often wins
+    view = np.full(10, 0.1)
+    view[8], view[4] = 0.95, 0.6
+    steps = _lost_then_relocalise(CONFIG, view)
+    assert CONFIG.localiser.relocalise_hops == 4
+    assert "re-localising near node 0 (5 nodes within 4 arcs)" in next(
+        s.reason for s in steps if s.state is NavState.RELOCALISING)
+    assert steps[-1].state is NavState.NAVIGATING and steps[-1].planned_path[0] == 4
+    # the paper's global localisation (relocalise_hops 0) takes the look-alike
+    from dataclasses import replace
+    global_only = replace(CONFIG, localiser=replace(CONFIG.localiser, relocalise_hops=0))
+    steps = _lost_then_relocalise(global_only, view)
+    assert "re-localising globally" in next(s.reason for s in steps if s.state is NavState.RELOCALISING)
+    assert steps[-1].planned_path[0] == 8
+
+
+def test_relocalisation_searches_the_whole_map_when_nothing_near_matches():
+    view = np.full(10, 0.1)
+    view[8] = 0.95                          # only a node far from the last confirmed one matches
+    steps = _lost_then_relocalise(CONFIG, view)
+    relocalising = [s for s in steps if s.state is NavState.RELOCALISING]
+    widened = [s for s in relocalising if "searching the whole map" in s.reason]
+    assert len(widened) == 1 and "no node within 4 arcs of node 0 matched" in widened[0].reason
+    # a full turn near node 0 first (counter-clockwise in place), then the whole map: node 8
+    assert all(s.velocity.v_mps == 0 for s in relocalising)
+    assert sum(s.velocity.w_radps for s in relocalising) * DT_S >= 2 * math.pi
+    assert steps[-1].state is NavState.NAVIGATING and steps[-1].planned_path[0] == 8
+    assert steps[-1].relocalisations == 1
+
+
+def test_local_relocalisation_waits_until_the_robot_faces_the_way_the_map_did():
+    # the drive faced heading 0 all along the chain; the robot got lost facing a side wall
+    # (2 rad off) whose view matches node 4: with the map's headings that view is not accepted,
+    # the robot turns on until it faces along the chain again (to within the tolerance)
+    view = np.full(10, 0.1)
+    view[4] = 0.6
+    headings = {n: 0.0 for n in range(10)}
+    tolerance = math.radians(CONFIG.localiser.relocalise_heading_tolerance_deg)
+    steps = _lost_then_relocalise(CONFIG, view, node_headings=headings, lost_heading=2.0)
+    relocalising = [s for s in steps if s.state is NavState.RELOCALISING]
+    turned = sum(s.velocity.w_radps for s in relocalising) * DT_S
+    assert steps[-1].planned_path[0] == 4
+    end_heading = 2.0 + turned
+    assert abs(math.remainder(end_heading, 2 * math.pi)) <= tolerance + 0.15
+    assert turned > 2 * math.pi - 2.0 - tolerance - 0.15          # it turned past the wall first
+    # without the map's headings (a map made from a video) the wall view is taken at once
+    steps = _lost_then_relocalise(CONFIG, view, lost_heading=2.0)
+    assert steps[-1].planned_path[0] == 4
+    assert sum(s.velocity.w_radps for s in steps if s.state is NavState.RELOCALISING) == 0

@@ -173,5 +173,7 @@ def test_contrast_decides_the_vote_when_given():
     second = voter.tick(raw, contrast)
     assert first.kind is VoteKind.STORED and first.vote is Third.MIDDLE
     assert second.action is Action.FORWARD
+    assert first.scores == second.scores == ThirdScores(*contrast)    # recorded: what the vote was taken on
+    assert voter.tick(raw).scores == ThirdScores(*raw)
     # a contrast below the threshold does not vote however high the cosine
     assert voter.tick((0.9, 0.9, 0.9), (0.2, 0.3, 0.1)).kind is VoteKind.NO_VOTE

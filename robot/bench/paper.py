@@ -37,7 +37,7 @@ from typing import Optional
 
 from tqdm import tqdm
 
-from robot.bench.trials import DEFAULT_METHODS, METHODS, Trial, plan_trials, run_trial, worker_init
+from robot.bench.trials import DEFAULT_METHODS, METHODS, Trial, config_digest, plan_trials, run_trial, worker_init
 
 DEFAULT_ROUTES = ("hospital:easy", "hospital:moderate", "hospital:hard", "office:main")
 DEFAULT_SPARSITY_LEVELS = (0.25, 0.5, 0.75)
@@ -58,8 +58,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--routes", default=",".join(DEFAULT_ROUTES),
                         help="comma-separated WORLD:ROUTE list (default: %(default)s); WORLD may be a world file")
     parser.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                        help="comma-separated: ours, sptm, ours-hints (ours with the turn hints from the map's "
-                             "odometry; default: ours,sptm)")
+                        help="comma-separated: ours, sptm, ours-hints, ours-no-hints (ours with the turn hints from "
+                             "the map's odometry forced on / off; default: ours,sptm)")
     parser.add_argument("--sparsity", default=",".join(f"{s:g}" for s in DEFAULT_SPARSITY_LEVELS),
                         help="map sparsity levels of the study (default %(default)s); 'none' skips the study")
     parser.add_argument("--sparsity-route", default="hospital:moderate",
@@ -73,6 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baseline-episodes", type=int, default=None,
                         help="expert exploration episodes to train the baseline (default: the trainer's)")
     parser.add_argument("--no-traces", action="store_true", help="skip the per-episode trace pictures")
+    parser.add_argument("--step-logs", action="store_true",
+                        help="also write every episode run's per-step log (JSON lines, as python -m robot.bench replay "
+                             "does) to <out>/replays/; reused episodes keep theirs")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--report-only", action="store_true",
                         help="run no episode: write the report of the episodes of this command already finished "
@@ -197,9 +200,15 @@ def _reusable(out: Path, trial: Trial) -> Optional[dict]:
     return done if done.get("trial") == asdict(trial) else None
 
 
+def step_log_path(out: Path, trial: Trial) -> Path:
+    """Where ``--step-logs`` (and a replay of the episode) writes the episode's per-step log."""
+    return out / "replays" / (_episode_file(out, trial).stem + ".steps.jsonl")
+
+
 def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Optional[str],
-               progress: bool) -> list[dict]:
-    """Run (or reuse) every trial; results in the order of ``trials``."""
+               progress: bool, step_logs: bool = False) -> list[dict]:
+    """Run (or reuse) every trial; results in the order of ``trials``. ``step_logs``: each episode
+    run also writes its per-step log (:func:`step_log_path`)."""
     results: dict[int, dict] = {}
     todo = []
     for i, trial in enumerate(trials):
@@ -211,6 +220,11 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
     # trial number first, then route and method: an interrupted run has every route's first trials
     todo.sort(key=lambda i: (trials[i].trial, i))
     bar = tqdm(total=len(trials), initial=len(results), unit="episode", desc="episodes", disable=not progress)
+    if step_logs:
+        (out / "replays").mkdir(parents=True, exist_ok=True)
+
+    def log_of(i: int) -> Optional[str]:
+        return str(step_log_path(out, trials[i])) if step_logs else None
 
     def finish(i: int, result: dict) -> None:
         results[i] = result
@@ -223,12 +237,12 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
         if workers <= 1 or len(todo) <= 1:
             worker_init()
             for i in todo:
-                finish(i, run_trial(trials[i], config_path))
+                finish(i, run_trial(trials[i], config_path, step_log=log_of(i)))
         else:
             # spawn: a fresh interpreter per worker (no forked PyBullet or torch state)
             with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=get_context("spawn"),
                                      initializer=worker_init) as pool:
-                futures = {pool.submit(run_trial, trials[i], config_path): i for i in todo}
+                futures = {pool.submit(run_trial, trials[i], config_path, step_log=log_of(i)): i for i in todo}
                 pending = set(futures)
                 from concurrent.futures import FIRST_COMPLETED, wait
                 while pending:
@@ -282,13 +296,13 @@ def main(args: argparse.Namespace) -> int:
     try:
         build = not args.report_only
         maps = {world: ensure_map(world, default_sparsity, config, out, progress, build) for world, _ in routes}
-        if "ours-hints" in methods:
+        if "ours-hints" in methods or ("ours" in methods and config.navigation.heading_hints):
             from maps.store import load_map
 
             for map_dir in maps.values():
                 if load_map(map_dir).topomap.odom_headings is None:
                     raise PaperBenchError(f"{map_dir}: the map has no odometry headings (made by an older version); "
-                                          "ours-hints needs them: delete the folder to rebuild it")
+                                          "the turn hints need them: delete the folder to rebuild it")
         baseline = None
         if "sptm" in methods:
             hospital = maps.get(BASELINE_WORLD) or ensure_map(BASELINE_WORLD, default_sparsity, config, out, progress,
@@ -306,10 +320,12 @@ def main(args: argparse.Namespace) -> int:
                 return shortest_cache[key]
             return f
 
+        digest = config_digest(config)
         plan: list[Trial] = []
         for world, route in routes:
             plan += plan_trials(specs[world], world, route, methods, trials, args.seed, maps[world],
-                                shortest_of(world, route), baseline_path=baseline, trace_dir=trace_dir)
+                                shortest_of(world, route), baseline_path=baseline, trace_dir=trace_dir,
+                                config_digest=digest)
         study: list[Trial] = []
         if levels:
             s_world, s_route = args.sparsity_route.rsplit(":", 1)
@@ -319,7 +335,7 @@ def main(args: argparse.Namespace) -> int:
                 level_map = ensure_map(s_world, level, config, out, progress, build)
                 study += plan_trials(specs[s_world], s_world, s_route, ["ours"], sparsity_trials, args.seed,
                                      level_map, shortest_of(s_world, s_route), sparsity=level,
-                                     trace_dir=trace_dir)
+                                     trace_dir=trace_dir, config_digest=digest)
         config_path = None if args.config is None else str(args.config)
         if args.report_only:
             results = [_reusable(out, t) for t in plan + study]
@@ -327,7 +343,7 @@ def main(args: argparse.Namespace) -> int:
                 raise PaperBenchError(f"no finished episode of this command in {out / 'episodes'}: run it "
                                       "without --report-only")
         else:
-            results = run_trials(plan + study, out, workers, config_path, progress)
+            results = run_trials(plan + study, out, workers, config_path, progress, step_logs=args.step_logs)
     except PaperBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

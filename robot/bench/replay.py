@@ -100,6 +100,19 @@ def main(args: argparse.Namespace) -> int:
     except ReplayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if trial.config_digest is not None:
+        from robot.bench.trials import config_digest
+        from robot.configfile import ConfigError
+        from robot.settings import load_stack_config
+
+        try:
+            digest = config_digest(load_stack_config(args.config))
+        except ConfigError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        if digest != trial.config_digest:
+            print(f"note: the configuration differs from the one the episode ran with (digest {digest}, recorded "
+                  f"{trial.config_digest}); pass the run's --config to reproduce it", file=sys.stderr)
     log = args.log or args.episode.resolve().parent.parent / "replays" / (args.episode.stem + ".steps.jsonl")
     trial = replace(trial, trace_png=None if args.trace is None else str(args.trace))
     worker_init()          # as the harness ran it: one torch / BLAS / OpenCV thread

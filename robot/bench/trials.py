@@ -15,6 +15,8 @@ part (``timing``): the same seeds give the same deterministic part, serial or pa
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import zlib
 from dataclasses import asdict, dataclass, replace
@@ -32,8 +34,9 @@ APPEARANCE_SEED_BASE = 1
 TRAJECTORY_EVERY = 10
 
 #: "ours": the two-cycle voter with the configuration as given; "sptm": the learned baseline;
-#: "ours-hints": ours with the turn hints from the map's odometry on (navigation.heading_hints).
-METHODS = ("ours", "sptm", "ours-hints")
+#: "ours-hints" / "ours-no-hints": ours with the turn hints from the map's odometry forced on / off
+#: (navigation.heading_hints; on in the default configuration), for the ablation.
+METHODS = ("ours", "sptm", "ours-hints", "ours-no-hints")
 #: What the harness runs unless --methods says otherwise (the paper's comparison).
 DEFAULT_METHODS = ("ours", "sptm")
 
@@ -44,7 +47,7 @@ class Trial:
 
     world: str                 # world name or path
     route: str
-    method: str                # "ours" (two-cycle voter), "sptm" (learned baseline), "ours-hints"
+    method: str                # "ours" (two-cycle voter), "sptm" (learned baseline), "ours-hints", "ours-no-hints"
     trial: int                 # 0-based trial number on this route
     map_dir: str
     appearance_seed: int
@@ -57,11 +60,20 @@ class Trial:
     baseline_path: Optional[str] = None
     sparsity: Optional[float] = None   # the map's sparsity (the sparsity study)
     trace_png: Optional[str] = None
+    config_digest: Optional[str] = None  # :func:`config_digest` of the stack config it ran with
 
     @property
     def key(self) -> str:
         sparsity = "" if self.sparsity is None else f"@{self.sparsity:g}"
         return f"{Path(self.world).stem}/{self.route}/{self.method}{sparsity}/{self.trial}"
+
+
+def config_digest(config) -> str:
+    """A short fingerprint of a stack configuration's values (not of its file): episodes record it,
+    so that a run with another configuration (another ``--config``, or an edited default) does not
+    reuse episodes made with the old one, and a replay can tell that the configuration changed."""
+    text = json.dumps(asdict(config), sort_keys=True, default=repr)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
 
 
 def trial_rng(seed: int, world: str, route: str, trial: int) -> np.random.Generator:
@@ -71,7 +83,8 @@ def trial_rng(seed: int, world: str, route: str, trial: int) -> np.random.Genera
 
 def plan_trials(world_spec, world: str, route: str, methods: Sequence[str], trials: int, seed: int,
                 map_dir: str | Path, shortest_of, *, baseline_path: Optional[str] = None,
-                sparsity: Optional[float] = None, trace_dir: Optional[Path] = None) -> list[Trial]:
+                sparsity: Optional[float] = None, trace_dir: Optional[Path] = None,
+                config_digest: Optional[str] = None) -> list[Trial]:
     """The trials of one route: for each trial number a start offset (uniform in a disc of
     MAX_OFFSET_M, yaw uniform within MAX_OFFSET_YAW_DEG) and appearance seed
     ``APPEARANCE_SEED_BASE + trial``, the same for every method. ``shortest_of(x, y)`` gives the
@@ -97,7 +110,7 @@ def plan_trials(world_spec, world: str, route: str, methods: Sequence[str], tria
                              offset_m=round(radius, 4), offset_yaw_deg=round(dyaw, 3),
                              shortest_length_m=shortest,
                              baseline_path=baseline_path if method == "sptm" else None,
-                             sparsity=sparsity, trace_png=trace))
+                             sparsity=sparsity, trace_png=trace, config_digest=config_digest))
     return out
 
 
@@ -150,8 +163,8 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
     elif trial.method not in METHODS:
         raise ValueError(f"unknown method {trial.method!r} (methods: {', '.join(METHODS)})")
     navigation = config.navigation
-    if trial.method == "ours-hints":
-        navigation = replace(navigation, heading_hints=True)
+    if trial.method in ("ours-hints", "ours-no-hints"):
+        navigation = replace(navigation, heading_hints=trial.method == "ours-hints")
     start = Pose2D(trial.start_x_m, trial.start_y_m, math.radians(trial.start_yaw_deg))
     try:
         result = run_sim_navigation(spec, trial.map_dir, descriptor, route=trial.route, start=start,
