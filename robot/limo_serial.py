@@ -37,8 +37,6 @@ from robot.limo_protocol import (ERROR_BITS_SEVERE, ControlModeCommand, FramePar
                                  WheelOdometry, describe_error_bits, encode_enable, encode_motion)
 from robot.state_estimate import PlanarEstimate, StateEstimateConfig, StateEstimator
 
-#: How long connect() waits for the camera's first frame (a UVC camera takes a moment to open).
-CAMERA_FIRST_FRAME_TIMEOUT_S = 5.0
 PORT_HINT = ("the Limo's Jetson uses /dev/ttyTHS1 (some Orin units /dev/ttyTHS0); a USB-serial "
              "adapter shows up as /dev/ttyUSB0; list ports with `python -m serial.tools.list_ports`")
 
@@ -70,6 +68,9 @@ class LimoSerialConfig:
     camera: Optional[str] = None
     camera_width: Optional[int] = None
     camera_height: Optional[int] = None
+    #: connect() waits this long for the camera's first frame and fails naming the camera
+    #: otherwise (a UVC camera takes a moment to open; navigation needs an image from the start)
+    camera_timeout_s: float = 5.0
     estimate: StateEstimateConfig = field(default_factory=StateEstimateConfig)
 
     def __post_init__(self) -> None:
@@ -80,7 +81,7 @@ class LimoSerialConfig:
         if not (math.isfinite(self.command_rate_hz) and self.command_rate_hz >= 20.0):
             raise ValueError(f"command_rate_hz must be at least 20 (the base needs a steady stream), "
                              f"got {self.command_rate_hz}")
-        for name in ("feedback_timeout_s", "control_period_s", "odometry_unit_m"):
+        for name in ("feedback_timeout_s", "control_period_s", "odometry_unit_m", "camera_timeout_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value}")
@@ -217,7 +218,7 @@ class LimoSerialBase(RobotBase):
                 self._camera.start()
                 # navigation needs an image in the very first frame: a camera that is still
                 # opening must not look like a camera that delivers nothing
-                self._camera.wait_for_frame(CAMERA_FIRST_FRAME_TIMEOUT_S)
+                self._camera.wait_for_frame(self.config.camera_timeout_s)
             self._wait_for_feedback()
         except BaseException:
             self.close()

@@ -299,6 +299,23 @@ def test_camera_frames_arrive_in_the_sensor_frame(emulator, tmp_path):
         assert rgb[..., 2].mean() > 200 and rgb[..., 0].mean() < 50  # RGB order: blue is channel 2
 
 
+def test_a_camera_without_frames_fails_connect_naming_it(emulator, tmp_path):
+    from robot.camera_source import CameraError
+
+    video = tmp_path / "empty.avi"
+    cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (64, 48)).release()   # no frame
+    base = LimoSerialBase(config_for(emulator, camera_timeout_s=0.5), camera=CameraSource(video))
+    t0 = time.monotonic()
+    with pytest.raises(CameraError, match="empty.avi"):
+        base.connect()
+    assert time.monotonic() - t0 < 2.0
+    # connect cleaned up: the port is free again for a base that needs no camera
+    with LimoSerialBase(config_for(emulator)) as other:
+        assert other.read().fault is None
+    with pytest.raises(ValueError, match="camera_timeout_s"):
+        LimoSerialConfig(camera_timeout_s=0.0)
+
+
 def test_serial_backend_passes_the_hal_conformance_check():
     check_base(lambda: EmulatedSerialLimo(LimoSerialConfig(control_period_s=0.05)))
 
