@@ -28,17 +28,19 @@ States (:class:`NavState`):
   ``t_milestone``); then a new plan from the node found (``relocalisations``). The search is
   local first: only nodes within ``localiser.relocalise_hops`` arcs of the anchor (the last node
   confirmed by driving, or the initial localisation) count, and only when a full turn finds
-  nothing there does it go on over the whole map (then without the lower threshold for the plan's stretch). With ``node_headings``, a node of the local
-  search counts only while the robot faces (by odometry) the way the mapping drive faced there,
-  relative to the anchor (``localiser.relocalise_heading_tolerance_deg``).
+  nothing there does it go on over the whole map (then without the lower threshold for the
+  plan's stretch). With ``node_headings``, a node of the local search counts only while the
+  robot faces (by odometry) the way the mapping drive faced there, relative to the anchor
+  (``localiser.relocalise_heading_tolerance_deg``).
 * (learned policy) with ``policy`` passed to :meth:`Navigator.tick`, the action while
   NAVIGATING comes from ``policy(target_node)`` instead of the voter (the SPTM-style baseline:
   same localisation, planning and node switching, a classifier picks the action); there is no
   weak vote and no search turn then, the supervisor's LOST still re-localises.
 * (turn hints) with ``node_headings`` (the mapping drive's odometry heading per node; pass them
-  whenever the map has them, each use has its own switch) and ``heading_hints`` on: after a node is confirmed, when the drive turned from it to the target by
-  at least ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on the odometry
-  heading) before the voter steers again: at corners the target is beside the field of view.
+  whenever the map has them, each use has its own switch) and ``heading_hints`` on: after a
+  node is confirmed, when the drive turned from it to the target by at least
+  ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on the odometry heading)
+  before the voter steers again: at corners the target is beside the field of view.
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero.
 * FAILED (final): cannot place itself, goal unreachable, or too many re-localisations;
   ``reason`` says which; velocity zero.
@@ -265,9 +267,9 @@ class Navigator:
                 row = np.where(self._local & self._facing_as_mapped(heading_rad), row, -1.0)
         result = self._localiser.tick(row, heading_rad)
         if result.status is LocaliserStatus.FAILED and self._local is not None:
-            # nothing near the anchor in a full turn: search the whole map from here on, on the
-            # strict terms (t_milestone) only: the plan's stretch near the anchor was just searched,
-            # and a stretch of a plan made after an earlier wrong re-localisation is no evidence
+            # nothing near the anchor in a full turn: search the whole map from here on, without
+            # the lower threshold for the plan's stretch: the stretch near the anchor was just
+            # searched, and a stretch of a plan made after a wrong re-localisation is no evidence
             self._local = None
             self._localiser = self._new_localiser((), first_view=False)
             return self._step(Action.SEARCH_ROTATE, turned_rad=result.turned_rad,
