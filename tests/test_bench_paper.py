@@ -116,6 +116,12 @@ def test_the_harness_writes_results_table_and_pictures(serial_run):
         log = paper.step_log_path(out, paper.Trial(**e["trial"]))
         if e["metrics"]["steps"] > 0:
             assert len(log.read_text().splitlines()) == e["metrics"]["steps"]
+    # ... read against the map's true node poses in a section of results.md
+    from robot.bench.diagnosis import diagnose, map_node_poses, read_step_log
+
+    ours_log = paper.step_log_path(out, paper.Trial(**main["trial"]))
+    if m["steps"] > 0 and diagnose(read_step_log(ours_log), map_node_poses(out / main["trial"]["map_dir"])).confirmations:
+        assert "## Place recognition in the loop (step logs)" in md and "| tiny_world short | ours | 1 |" in md
 
 
 def test_parallel_workers_give_the_same_results_and_reruns_resume(serial_run, tmp_path):
@@ -179,6 +185,24 @@ def test_report_only_reports_the_finished_episodes_and_runs_none(serial_run, tmp
     assert not (other / "results.json").exists()
 
 
+def test_the_report_leaves_out_a_step_log_of_another_run(serial_run, capsys):
+    out, argv = serial_run
+    logs = sorted((out / "replays").glob("*.steps.jsonl"))
+    assert logs
+    kept = {log: log.read_text() for log in logs}
+    try:
+        for log in logs:                # as if the episodes had run again since, without --step-logs
+            log.write_text(kept[log].splitlines()[0] + "\n")
+        assert paper.main(_args(*argv, "--report-only")) == 0
+        err = capsys.readouterr().err
+        assert "a log of an earlier run, left out of the report" in err and logs[0].name in err
+        assert "## Place recognition in the loop" not in (out / "results.md").read_text()
+    finally:
+        for log, text in kept.items():
+            log.write_text(text)
+    assert paper.main(_args(*argv, "--report-only")) == 0
+
+
 def _replay_args(*argv):
     from robot.bench import replay
 
@@ -196,6 +220,7 @@ def test_replay_reproduces_an_episode_with_a_step_log(serial_run, tmp_path, caps
     assert replay.main(args) == 0
     printed = capsys.readouterr().out
     assert "reproduced" in printed and "NOT" not in printed
+    assert "nodes confirmed" in printed        # the step log read against the map's true node poses
     lines = [json.loads(line) for line in log.read_text().splitlines()]
     assert len(lines) == recorded["metrics"]["steps"] > 0
     assert [e["step"] for e in lines] == list(range(len(lines)))

@@ -37,7 +37,8 @@ from typing import Optional
 
 from tqdm import tqdm
 
-from robot.bench.trials import DEFAULT_METHODS, METHODS, Trial, config_digest, plan_trials, run_trial, worker_init
+from robot.bench.trials import (DEFAULT_METHODS, METHODS, Trial, config_digest, episode_path, plan_trials, run_trial,
+                                step_log_path, worker_init)
 
 DEFAULT_ROUTES = ("hospital:easy", "hospital:moderate", "hospital:hard", "office:main")
 DEFAULT_SPARSITY_LEVELS = (0.25, 0.5, 0.75)
@@ -178,10 +179,6 @@ def ensure_baseline(path: Optional[Path], out: Path, hospital_map: Path, episode
 
 
 # -- running --------------------------------------------------------------------------------------
-def _episode_file(out: Path, trial: Trial) -> Path:
-    return out / "episodes" / (trial.key.replace("/", "_") + ".json")
-
-
 def _write_json(path: Path, data) -> None:
     from robot.map_building import write_json_atomic
 
@@ -190,7 +187,7 @@ def _write_json(path: Path, data) -> None:
 
 
 def _reusable(out: Path, trial: Trial) -> Optional[dict]:
-    path = _episode_file(out, trial)
+    path = episode_path(out, trial)
     if not path.is_file():
         return None
     try:
@@ -198,11 +195,6 @@ def _reusable(out: Path, trial: Trial) -> Optional[dict]:
     except (OSError, json.JSONDecodeError):
         return None
     return done if done.get("trial") == asdict(trial) else None
-
-
-def step_log_path(out: Path, trial: Trial) -> Path:
-    """Where ``--step-logs`` (and a replay of the episode) writes the episode's per-step log."""
-    return out / "replays" / (_episode_file(out, trial).stem + ".steps.jsonl")
 
 
 def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Optional[str],
@@ -228,7 +220,7 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
 
     def finish(i: int, result: dict) -> None:
         results[i] = result
-        _write_json(_episode_file(out, trials[i]), result)
+        _write_json(episode_path(out, trials[i]), result)
         m = result["metrics"]
         bar.set_postfix_str(f"{trials[i].key}: {'ok' if m['success'] else 'FAIL'}", refresh=False)
         bar.update(1)

@@ -142,7 +142,7 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
 
     table = _paper_table(routes, methods, summary)
     md = _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route,
-                   results["maps"], [*main, *study], out, partial)
+                   results["maps"], [*main, *study], out, partial, _diagnoses([*main, *study], out, specs))
     files.append(_write(out / "results.md", md))
     files += _plots(out, routes, methods, summary, main, specs, sparsity)
     return {"table": table, "files": files}
@@ -169,8 +169,54 @@ def _paper_table(routes, methods, summary) -> str:
     return "\n".join(lines)
 
 
+def _diagnoses(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
+    """``{id(episode): Diagnosis}`` for the episodes with a step log of all their steps in ``out``
+    and a map with true node poses (:mod:`robot.bench.diagnosis`); ``specs``: the world specs by
+    name (the true goal of each route)."""
+    import sys
+
+    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log
+    from robot.bench.trials import Trial, step_log_path
+
+    poses_of: dict = {}
+    found = {}
+    for e in episodes:
+        trial = Trial(**e["trial"])
+        log = step_log_path(out, trial)
+        if not log.is_file():
+            continue
+        if trial.map_dir not in poses_of:
+            poses_of[trial.map_dir] = map_node_poses(Path(trial.map_dir))
+        if poses_of[trial.map_dir] is None:
+            continue
+        try:
+            steps = read_step_log(log)
+            if len(steps) != e["metrics"]["steps"]:
+                print(f"note: {log} has {len(steps)} steps, the episode {e['metrics']['steps']}: a log of an earlier "
+                      "run, left out of the report", file=sys.stderr)
+                continue
+            spec = _spec_of(specs, Path(trial.world).stem)
+            route = None if spec is None else spec.routes.evaluation.get(trial.route)
+            goal = None if route is None or e.get("goal_node") is None else (e["goal_node"], route.goal[:2])
+            found[id(e)] = diagnose(steps, poses_of[trial.map_dir], goal)
+        except (StepLogError, KeyError) as exc:
+            print(f"note: {log}: left out of the report ({exc})", file=sys.stderr)
+    return found
+
+
+def _spec_of(specs: dict, world: str):
+    return next((s for name, s in specs.items() if Path(name).stem == world or s.name == world), None)
+
+
+def _episode_label(e: dict) -> str:
+    t = e["trial"]
+    level = "" if t.get("sparsity") is None else f" @{t['sparsity']:g}"
+    return f"{Path(t['world']).stem} {t['route']}{level}"
+
+
 def _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route, maps,
-              episodes, out: Path, partial: Optional[dict] = None) -> str:
+              episodes, out: Path, partial: Optional[dict] = None, diagnoses: Optional[dict] = None) -> str:
+    diagnoses = diagnoses or {}
     trials = max((s["trials"] for r in summary.values() for s in r.values()), default=0)
     lines = ["# The paper's table in PyBullet", ""]
     if partial:
@@ -199,22 +245,44 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
                      f"{info['loop_closures']} loop closure(s)")
     failed = [e for e in main if not e["metrics"]["success"]]
     if failed:
-        lines += ["", "## Failed episodes", "",
-                  "| episode | final distance (m) | end | goal node (ambiguous with) | reason |",
-                  "|---|---|---|---|---|"]
+        lines += ["", "## Failed episodes", ""]
+        if diagnoses:
+            lines += ["The last column reads the episode's step log against the map's true node poses "
+                      "(`robot/bench/diagnosis.py`): the first node confirmed at a wrong place and where the robot "
+                      "first got lost.", ""]
+        lines += ["| episode | final distance (m) | end | goal node (ambiguous with) | reason | step log |",
+                  "|---|---|---|---|---|---|"]
         for e in failed:
             t, m = e["trial"], e["metrics"]
             rivals = e.get("goal_rivals") or []
             goal = f"{e['goal_node']}" + (f" ({', '.join(map(str, rivals))})" if rivals else "")
             lines.append(f"| {Path(t['world']).stem}/{t['route']}/{t['method']}/{t['trial']} "
                          f"(appearance {t['appearance_seed']}) | {m['final_distance_m']} | {m['end']} | {goal} | "
-                         f"{m['reason'][:150]} |")
+                         f"{m['reason'][:150]} | {diagnoses[id(e)].summary() if id(e) in diagnoses else '-'} |")
     if sparsity:
         lines += ["", f"## Map sparsity ({sparsity_route}, our method)", "",
                   "| sparsity | nodes | mean arc (m) | SR | SPL | mean re-localisations |", "|---|---|---|---|---|---|"]
         for level, s in sparsity.items():
             lines.append(f"| {level} | {s['map']['nodes']} | {s['map']['mean_arc_length_m']} | "
                          f"{s['success_rate']:.2f} | {s['spl']:.2f} | {s['mean_relocalisations']:.2f} |")
+    if diagnoses:
+        from robot.bench.diagnosis import FAR_M, NEAR_M, TURNED_DEG, confirmation_counts
+
+        lines += ["", "## Place recognition in the loop (step logs)", "",
+                  "A confirmation is a node the navigator took as where the robot stood (localised at, or reached "
+                  f"by driving); it is wrong when the robot stood more than {FAR_M:g} m from the node's true pose, or "
+                  f"more than {NEAR_M:g} m from it facing more than {TURNED_DEG:g} deg away from the node's heading "
+                  "(`robot/bench/diagnosis.py`).", "",
+                  "| route | method | episodes | confirmations | wrong | (re-)localisations | wrong | "
+                  "median distance to the node (m) |", "|---|---|---|---|---|---|---|---|"]
+        groups: dict = {}
+        for e in episodes:
+            if id(e) in diagnoses:
+                groups.setdefault((_episode_label(e), e["trial"]["method"]), []).append(diagnoses[id(e)])
+        for (label, method), found in groups.items():
+            c = confirmation_counts(found)
+            lines.append(f"| {label} | {method} | {c['episodes']} | {c['confirmations']} | {c['wrong']} | "
+                         f"{c['localisations']} | {c['wrong_localisations']} | {c['median_distance_m']} |")
     timed = [e["timing"] for e in episodes if e["timing"]["ms_per_step"]["total_ms"] > 0]
     if timed:
         keys = ("read_ms", "describe_ms", "decide_ms", "tick_ms", "total_ms")
@@ -259,7 +327,7 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
     from sim.topdown import render_topdown
 
     for w, r in routes:
-        spec = next((s for name, s in specs.items() if Path(name).stem == w or s.name == w), None)
+        spec = _spec_of(specs, w)
         if spec is None:
             continue
         panels = []

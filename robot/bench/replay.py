@@ -21,6 +21,7 @@ import json
 import sys
 from dataclasses import MISSING, fields, replace
 from pathlib import Path
+from typing import Optional
 
 #: What must match for an episode to count as reproduced.
 COMPARED = ("steps", "end", "success", "final_distance_m", "relocalisations")
@@ -90,8 +91,30 @@ def events(log_path: Path) -> list[str]:
     return out
 
 
+def _diagnosis(log: Path, trial, goal_node) -> Optional[str]:
+    """The step log read against the map's true node poses (:mod:`robot.bench.diagnosis`), or
+    None (no log, or a map without true poses)."""
+    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log
+    from sim.world_spec import WorldError, load_world
+
+    poses = map_node_poses(Path(trial.map_dir))
+    if poses is None or not log.is_file():
+        return None
+    try:
+        route = load_world(trial.world).routes.evaluation.get(trial.route)
+    except (WorldError, OSError):
+        route = None
+    goal = None if route is None or goal_node is None else (goal_node, route.goal[:2])
+    try:
+        d = diagnose(read_step_log(log), poses, goal)
+    except (StepLogError, KeyError) as exc:
+        return f"step log not diagnosed: {exc}"
+    return (f"step log: {len(d.confirmations)} nodes confirmed, {len(d.wrong)} at a wrong place; "
+            f"{d.summary()}")
+
+
 def main(args: argparse.Namespace) -> int:
-    from robot.bench.trials import run_trial, worker_init
+    from robot.bench.trials import run_trial, step_log_path, worker_init
 
     try:
         trial, recorded = load_episode(args.episode)
@@ -113,7 +136,7 @@ def main(args: argparse.Namespace) -> int:
         if digest != trial.config_digest:
             print(f"note: the configuration differs from the one the episode ran with (digest {digest}, recorded "
                   f"{trial.config_digest}); pass the run's --config to reproduce it", file=sys.stderr)
-    log = args.log or args.episode.resolve().parent.parent / "replays" / (args.episode.stem + ".steps.jsonl")
+    log = args.log or step_log_path(args.episode.resolve().parent.parent, trial)
     trial = replace(trial, trace_png=None if args.trace is None else str(args.trace))
     worker_init()          # as the harness ran it: one torch / BLAS / OpenCV thread
     try:
@@ -131,6 +154,9 @@ def main(args: argparse.Namespace) -> int:
     print(f"\n{trial.key}: {'success' if m['success'] else 'failure'}, {m['steps']} steps, end {m['end']}, "
           f"final distance {m['final_distance_m']} m, {m['relocalisations']} re-localisations, "
           f"{m['collisions']} collisions: {m['reason']}")
+    diagnosis = _diagnosis(log, trial, result.get("goal_node"))
+    if diagnosis:
+        print(diagnosis)
     written = [str(log)] if log.is_file() else []
     written += [str(p) for p in (args.video, args.trace) if p is not None]
     if written:

@@ -68,6 +68,16 @@ class Trial:
         return f"{Path(self.world).stem}/{self.route}/{self.method}{sparsity}/{self.trial}"
 
 
+def episode_path(out: Path, trial: Trial) -> Path:
+    """Where a run in ``out`` keeps the trial's result (``episodes/<world>_<route>_<method>_<n>.json``)."""
+    return Path(out) / "episodes" / (trial.key.replace("/", "_") + ".json")
+
+
+def step_log_path(out: Path, trial: Trial) -> Path:
+    """Where ``--step-logs`` (and a replay of the episode) writes the trial's per-step log."""
+    return Path(out) / "replays" / (trial.key.replace("/", "_") + ".steps.jsonl")
+
+
 def config_digest(config) -> str:
     """A short fingerprint of a stack configuration's values (not of its file): episodes record it,
     so that a run with another configuration (another ``--config``, or an edited default) does not

@@ -1,0 +1,88 @@
+"""Reading step logs against the map's true node poses (robot.bench.diagnosis)."""
+
+import json
+import math
+
+import pytest
+
+from robot.bench.diagnosis import (StepLogError, confirmation_counts, diagnose, map_node_poses, node_poses,
+                                   read_step_log)
+
+POSES = {0: (0.0, 0.0, 0.0), 1: (1.0, 0.0, 0.0), 2: (2.0, 0.0, 0.0), 3: (10.0, 0.0, math.pi)}
+
+
+def _step(i, state, node, target=None, x=0.0, y=0.0, yaw=0.0):
+    return {"step": i, "x_m": x, "y_m": y, "yaw_deg": yaw, "state": state, "current_node": node,
+            "target_node": target, "reason": "..."}
+
+
+STEPS = [
+    _step(0, "localising", None),
+    _step(1, "localising", None),
+    _step(2, "navigating", 0, None, x=0.1),                 # localised at node 0, 0.1 m from it
+    _step(3, "navigating", 0, 1, x=0.6),
+    _step(4, "navigating", 1, 2, x=1.2),                    # reached node 1
+    _step(5, "relocalising", 1, None, x=1.5),               # lost between 1 and 2
+    _step(6, "relocalising", 1, None, x=1.5, yaw=20.0),
+    _step(7, "navigating", 3, None, x=1.5),                 # re-localised at node 3, 8.5 m away: wrong
+    _step(8, "navigating", 2, 1, x=1.5, y=0.5, yaw=90.0),   # node 2 0.7 m away facing 90 deg off: near enough
+    _step(9, "searching", 1, 2, x=2.5, yaw=45.0),           # node 1 1.5 m away facing 45 deg off: wrong
+    _step(10, "arrived", 1, None, x=2.5, yaw=45.0),         # the same node: no new confirmation
+]
+
+
+def test_confirmations_wrong_places_and_lost_events():
+    d = diagnose(STEPS, POSES)
+    assert [(c.step, c.node, c.kind) for c in d.confirmations] == \
+        [(2, 0, "localised"), (4, 1, "reached"), (7, 3, "localised"), (8, 2, "reached"), (9, 1, "reached")]
+    assert [c.distance_m for c in d.confirmations] == [0.1, 0.2, 8.5, pytest.approx(0.707, abs=1e-3), 1.5]
+    assert d.confirmations[2].heading_error_deg == -180.0 and d.confirmations[3].heading_error_deg == 90.0
+    assert [c.step for c in d.wrong] == [7, 9]
+    assert [(e.step, e.current_node, e.target_node, e.x_m) for e in d.lost] == [(5, 1, 2, 1.5)]
+    summary = d.summary()
+    assert summary.startswith("first wrong place: step 7, node 3 localised 8.5 m from it at (1.5, 0.0)")
+    assert summary.endswith("first lost: step 5 at (1.5, 0.0), 1 -> 2")
+    counts = confirmation_counts([d, diagnose(STEPS[:5], POSES)])
+    assert counts == {"episodes": 2, "confirmations": 7, "wrong": 2, "localisations": 3, "wrong_localisations": 1,
+                      "median_distance_m": 0.2}
+
+
+def test_a_goal_image_placed_at_a_far_node_is_named_first():
+    d = diagnose(STEPS[:5], POSES, goal=(3, (0.0, 0.5)))
+    assert d.goal_node == 3 and d.goal_node_error_m == pytest.approx(10.012, abs=1e-3)
+    assert d.summary() == "the goal image matched node 3, 10.0 m from the goal; every node confirmed at its place"
+    assert diagnose(STEPS[:5], POSES, goal=(1, (1.2, 0.0))).summary() == "every node confirmed at its place"
+    with pytest.raises(KeyError, match="goal node 7"):
+        diagnose(STEPS[:5], POSES, goal=(7, (0.0, 0.0)))
+
+
+def test_a_clean_episode_says_so_and_a_log_of_another_map_is_refused():
+    d = diagnose(STEPS[:5], POSES)
+    assert d.wrong == () and d.lost == () and d.summary() == "every node confirmed at its place"
+    with pytest.raises(KeyError, match="node 3"):
+        diagnose(STEPS, {k: v for k, v in POSES.items() if k != 3})
+
+
+def test_node_poses_need_a_true_pose_for_every_node(tmp_path):
+    manifest = {"nodes": [{"id": 0, "true_pose": {"x_m": 1.0, "y_m": 2.0, "yaw_rad": 0.5}},
+                          {"id": 1, "true_pose": {"x_m": 3.0, "y_m": 2.0, "yaw_rad": 0.0}}]}
+    assert node_poses(manifest) == {0: (1.0, 2.0, 0.5), 1: (3.0, 2.0, 0.0)}
+    manifest["nodes"].append({"id": 2})                     # a node of a video map: no true pose
+    assert node_poses(manifest) is None
+    (tmp_path / "manifest.json").write_text(json.dumps(manifest))
+    assert map_node_poses(tmp_path) is None
+    assert map_node_poses(tmp_path / "nowhere") is None
+
+
+def test_read_step_log_names_the_file_and_line(tmp_path):
+    log = tmp_path / "steps.jsonl"
+    log.write_text("\n".join(json.dumps(s) for s in STEPS) + "\n")
+    assert read_step_log(log) == STEPS
+    log.write_text(json.dumps(STEPS[0]) + "\n{cut off\n")
+    with pytest.raises(StepLogError, match=r"steps.jsonl: line 2 is not JSON"):
+        read_step_log(log)
+    log.write_text(json.dumps({"step": 0, "x_m": 0.0}) + "\n")
+    with pytest.raises(StepLogError, match=r"line 1 has no y_m, yaw_deg, state"):
+        read_step_log(log)
+    with pytest.raises(StepLogError, match="cannot read"):
+        read_step_log(tmp_path / "missing.jsonl")
