@@ -37,6 +37,7 @@ def test_confirmations_wrong_places_and_lost_events():
         [(2, 0, "localised"), (4, 1, "reached"), (7, 3, "localised"), (8, 2, "reached"), (9, 1, "reached")]
     assert [c.distance_m for c in d.confirmations] == [0.1, 0.2, 8.5, pytest.approx(0.707, abs=1e-3), 1.5]
     assert d.confirmations[2].heading_error_deg == -180.0 and d.confirmations[3].heading_error_deg == 90.0
+    assert (d.confirmations[2].node_x_m, d.confirmations[2].node_y_m) == (10.0, 0.0)
     assert [c.step for c in d.wrong] == [7, 9]
     assert [(e.step, e.current_node, e.target_node, e.x_m) for e in d.lost] == [(5, 1, 2, 1.5)]
     summary = d.summary()

@@ -200,6 +200,24 @@ def test_the_report_leaves_out_a_step_log_of_another_run(serial_run, capsys):
     finally:
         for log, text in kept.items():
             log.write_text(text)
+    # a confirmation moved 5 m from where the robot stood counts as wrong, in the table and the pictures
+    from robot.bench.diagnosis import diagnose, map_node_poses
+
+    ours_log = next(log for log in logs if "_ours_" in log.name)
+    steps = [json.loads(line) for line in kept[ours_log].splitlines()]
+    episode = json.loads(next((out / "episodes").glob("*_ours_0.json")).read_text())
+    found = diagnose(steps, map_node_poses(episode["trial"]["map_dir"]))
+    right = next((c for c in found.confirmations if not c.is_wrong()), None)
+    if right is not None:
+        try:
+            steps[right.step]["x_m"] += 5.0
+            ours_log.write_text("".join(json.dumps(e) + "\n" for e in steps))
+            assert paper.main(_args(*argv, "--report-only")) == 0
+            section = (out / "results.md").read_text().split("## Place recognition in the loop")[1]
+            row = next(line for line in section.splitlines() if line.startswith("| tiny_world short | ours |"))
+            assert int(row.split(" | ")[4]) == len(found.wrong) + 1      # one more wrong confirmation
+        finally:
+            ours_log.write_text(kept[ours_log])
     assert paper.main(_args(*argv, "--report-only")) == 0
 
 

@@ -54,6 +54,8 @@ class Confirmation:
     x_m: float                 # the robot's true position then
     y_m: float
     distance_m: float          # from the node's true position
+    node_x_m: float            # the node's true position
+    node_y_m: float
     heading_error_deg: float   # the robot's true yaw minus the node's (wrapped to [-180, 180))
 
     def is_wrong(self, far_m: float = FAR_M, near_m: float = NEAR_M, turned_deg: float = TURNED_DEG) -> bool:
@@ -169,7 +171,7 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
             error = math.degrees(math.remainder(math.radians(float(s["yaw_deg"])) - yaw, 2 * math.pi))
             confirmations.append(Confirmation(
                 step=int(s["step"]), node=node, kind=kind, x_m=float(s["x_m"]), y_m=float(s["y_m"]),
-                distance_m=round(math.hypot(float(s["x_m"]) - x, float(s["y_m"]) - y), 3),
+                distance_m=round(math.hypot(float(s["x_m"]) - x, float(s["y_m"]) - y), 3), node_x_m=x, node_y_m=y,
                 heading_error_deg=round(error if error < 180.0 else error - 360.0, 1)))
         if state == "relocalising" and previous is not None and previous["state"] in ("navigating", "searching"):
             lost.append(LostEvent(step=int(s["step"]), x_m=float(s["x_m"]), y_m=float(s["y_m"]),

@@ -141,10 +141,11 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
     files.append(_write(out / "timings.json", json.dumps(timings, indent=2) + "\n"))
 
     table = _paper_table(routes, methods, summary)
+    diagnoses = _diagnoses([*main, *study], out, specs)
     md = _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route,
-                   results["maps"], [*main, *study], out, partial, _diagnoses([*main, *study], out, specs))
+                   results["maps"], [*main, *study], out, partial, diagnoses)
     files.append(_write(out / "results.md", md))
-    files += _plots(out, routes, methods, summary, main, specs, sparsity)
+    files += _plots(out, routes, methods, summary, main, specs, sparsity, diagnoses)
     return {"table": table, "files": files}
 
 
@@ -296,7 +297,7 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
     return "\n".join(lines)
 
 
-def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[Path]:
+def _plots(out: Path, routes, methods, summary, main, specs, sparsity, diagnoses: Optional[dict] = None) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -342,6 +343,11 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
                 good = e["metrics"]["success"]
                 ok += good
                 td.draw_polyline(e["trajectory"], (40, 160, 60) if good else (220, 40, 40), 2)
+            for e in main:      # wrong confirmations: where the robot stood -> the node it was taken for
+                if _route_id(e) == (w, r) and e["trial"]["method"] == m and id(e) in (diagnoses or {}):
+                    for c in diagnoses[id(e)].wrong:
+                        td.draw_polyline([(c.x_m, c.y_m), (c.node_x_m, c.node_y_m)], (240, 150, 20), 1)
+                        td.draw_marker(c.x_m, c.y_m, (240, 150, 20), shape="diamond", size_px=4)
             td.draw_marker(*route.goal[:2], (0, 0, 0), label="goal", shape="square")
             td.draw_marker(*route.start[:2], (0, 0, 0), label="start", shape="circle")
             panels.append((m, td.image, ok))
@@ -350,7 +356,8 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity) -> list[P
             n = summary[f"{w}:{r}"][m]["trials"]
             ax.imshow(img)
             ax.set_axis_off()
-            ax.set_title(f"{w} {r}: {METHOD_LABELS[m]}: {ok}/{n} successes (green), failures red", fontsize=9)
+            ax.set_title(f"{w} {r}: {METHOD_LABELS[m]}: {ok}/{n} successes (green), failures red"
+                         + ("; orange: wrong confirmations" if diagnoses else ""), fontsize=9)
         fig.tight_layout()
         files.append(out / f"trajectories_{w}_{r}.png")
         fig.savefig(files[-1], dpi=110)
