@@ -6,7 +6,7 @@ import math
 import pytest
 
 from robot.bench.diagnosis import (StepLogError, confirmation_counts, diagnose, map_node_poses, node_poses,
-                                   read_step_log)
+                                   read_step_log, route_goal)
 
 POSES = {0: (0.0, 0.0, 0.0), 1: (1.0, 0.0, 0.0), 2: (2.0, 0.0, 0.0), 3: (10.0, 0.0, math.pi)}
 
@@ -87,3 +87,14 @@ def test_read_step_log_names_the_file_and_line(tmp_path):
         read_step_log(log)
     with pytest.raises(StepLogError, match="cannot read"):
         read_step_log(tmp_path / "missing.jsonl")
+
+
+def test_route_goal_reads_the_true_goal_of_an_evaluation_route_from_the_world_spec():
+    from sim.world_spec import load_world
+
+    spec = load_world("hospital")
+    route = spec.routes.evaluation["easy"]
+    assert route_goal(spec, "easy", 12) == (12, (route.goal[0], route.goal[1]))
+    assert route_goal(spec, "no-such-route", 12) is None
+    assert route_goal(spec, "easy", None) is None        # the episode placed no goal image
+    assert route_goal(None, "easy", 12) is None           # world spec not found

@@ -146,6 +146,16 @@ def read_step_log(path: Path) -> list[dict]:
     return steps
 
 
+def route_goal(spec, route: str, goal_node) -> Optional[tuple]:
+    """``(goal node, (x_m, y_m) of the route's true goal)`` for :func:`diagnose`, or None when the
+    world spec (``spec``, a :class:`sim.world_spec.WorldSpec` or None) has no evaluation route
+    ``route`` or the episode placed no goal node."""
+    found = None if spec is None else spec.routes.evaluation.get(route)
+    if found is None or goal_node is None:
+        return None
+    return goal_node, (float(found.goal[0]), float(found.goal[1]))
+
+
 def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = None) -> Diagnosis:
     """The confirmations and lost events of one episode's steps (see the module docstring).
 

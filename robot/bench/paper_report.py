@@ -176,7 +176,7 @@ def _diagnoses(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
     name (the true goal of each route)."""
     import sys
 
-    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log
+    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log, route_goal
     from robot.bench.trials import Trial, step_log_path
 
     poses_of: dict = {}
@@ -196,9 +196,7 @@ def _diagnoses(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
                 print(f"note: {log} has {len(steps)} steps, the episode {e['metrics']['steps']}: a log of an earlier "
                       "run, left out of the report", file=sys.stderr)
                 continue
-            spec = _spec_of(specs, Path(trial.world).stem)
-            route = None if spec is None else spec.routes.evaluation.get(trial.route)
-            goal = None if route is None or e.get("goal_node") is None else (e["goal_node"], route.goal[:2])
+            goal = route_goal(_spec_of(specs, Path(trial.world).stem), trial.route, e.get("goal_node"))
             found[id(e)] = diagnose(steps, poses_of[trial.map_dir], goal)
         except (StepLogError, KeyError) as exc:
             print(f"note: {log}: left out of the report ({exc})", file=sys.stderr)

@@ -94,17 +94,17 @@ def events(log_path: Path) -> list[str]:
 def _diagnosis(log: Path, trial, goal_node) -> Optional[str]:
     """The step log read against the map's true node poses (:mod:`robot.bench.diagnosis`), or
     None (no log, or a map without true poses)."""
-    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log
+    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log, route_goal
     from sim.world_spec import WorldError, load_world
 
     poses = map_node_poses(Path(trial.map_dir))
     if poses is None or not log.is_file():
         return None
     try:
-        route = load_world(trial.world).routes.evaluation.get(trial.route)
+        spec = load_world(trial.world)
     except (WorldError, OSError):
-        route = None
-    goal = None if route is None or goal_node is None else (goal_node, route.goal[:2])
+        spec = None
+    goal = route_goal(spec, trial.route, goal_node)
     try:
         d = diagnose(read_step_log(log), poses, goal)
     except (StepLogError, KeyError) as exc:
