@@ -240,10 +240,16 @@ class LocaliserConfig:
     #: harness's step logs (428 confirmations, hospital and office: median 6, p95 23, p99 39 deg).
     #: 180: no gate.
     relocalise_heading_tolerance_deg: float = 40.0
+    #: The gate's map-to-odometry heading offset (odometry heading minus the map's at a node) is
+    #: the median over the last this many confirmations (the first localisation and nodes
+    #: confirmed by driving). 1: the anchor's offset alone, so one node confirmed early at a
+    #: corner, facing the wrong way, turns the gate with it.
+    relocalise_heading_confirmations: int = 1
 
     def __post_init__(self) -> None:
         _check_count("confirm_ticks", self.confirm_ticks, 1)
         _check_count("relocalise_hops", self.relocalise_hops, 0)
+        _check_count("relocalise_heading_confirmations", self.relocalise_heading_confirmations, 1)
         tol = self.relocalise_heading_tolerance_deg
         if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 < tol <= 180.0:
             raise ValueError(f"relocalise_heading_tolerance_deg must be a number of degrees in (0, 180], got {tol!r}")

@@ -30,8 +30,10 @@ States (:class:`NavState`):
   confirmed by driving, or the initial localisation) count, and only when a full turn finds
   nothing there does it go on over the whole map (then without the lower threshold for the
   plan's stretch). With ``node_headings``, a node of the local search counts only while the
-  robot faces (by odometry) the way the mapping drive faced there, relative to the anchor
-  (``localiser.relocalise_heading_tolerance_deg``).
+  robot faces (by odometry) the way the mapping drive faced there, to within
+  ``localiser.relocalise_heading_tolerance_deg``: the map-to-odometry heading offset is the
+  median of those at the last ``localiser.relocalise_heading_confirmations`` confirmations (1:
+  the anchor's alone).
 * (learned policy) with ``policy`` passed to :meth:`Navigator.tick`, the action while
   NAVIGATING comes from ``policy(target_node)`` instead of the voter (the SPTM-style baseline:
   same localisation, planning and node switching, a classifier picks the action); there is no
@@ -48,6 +50,7 @@ States (:class:`NavState`):
 
 from __future__ import annotations
 
+import collections
 import enum
 import math
 from dataclasses import dataclass
@@ -179,10 +182,14 @@ class Navigator:
             if bad:
                 raise NavigationInputError(f"node_headings has no finite heading for node {bad[0]!r}")
             self._headings = {n: float(h) for n, h in headings.items()}
+        self._heading_of_column = (None if self._headings is None else
+                                   np.array([self._headings[n] for n in self.node_ids]))
         self._anchor: Optional[NodeId] = None     # last node confirmed by driving (or the first localisation)
-        self._anchor_heading: Optional[float] = None   # the odometry heading when the anchor was confirmed
         self._local: Optional[np.ndarray] = None  # columns a local re-localisation may choose, or None (global)
-        self._heading_offsets: Optional[tuple] = None   # (anchor, map heading of each column minus the anchor's)
+        # odometry heading minus the map's at the last confirmations (the first localisation and
+        # nodes confirmed by driving), newest last: the heading gate's map-to-odometry offset
+        self._offsets: collections.deque = collections.deque(
+            maxlen=self.config.localiser.relocalise_heading_confirmations)
         self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
         self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
 
@@ -281,7 +288,7 @@ class Navigator:
             return self._step(result.action, reason=result.reason, turned_rad=result.turned_rad)
         start = result.node
         if self._state is NavState.LOCALISING:
-            self._anchor, self._anchor_heading = start, heading_rad
+            self._set_anchor(start, heading_rad)
         self._local = None
         self._remember(start)
         try:
@@ -323,17 +330,32 @@ class Navigator:
         return self._step(Action.NONE, decision=decision,
                           reason=f"{why}; re-localising {where} ({self._relocalisations})")
 
+    def _set_anchor(self, node: NodeId, heading_rad: Optional[float]) -> None:
+        self._anchor = node
+        if self._headings is not None and heading_rad is not None:
+            self._offsets.append(wrap_angle(float(heading_rad) - self._headings[node]))
+
+    def heading_offset(self) -> Optional[float]:
+        """The map-to-odometry heading offset the heading gate uses (radians; odometry heading
+        minus the map's): the median of the offsets at the last
+        ``localiser.relocalise_heading_confirmations`` confirmations, taken as differences from
+        the newest so that offsets either side of +-pi average right; None before the first
+        confirmation with a heading (or on a map without headings)."""
+        if not self._offsets:
+            return None
+        newest = self._offsets[-1]
+        spread = [wrap_angle(o - newest) for o in self._offsets]
+        return wrap_angle(newest + float(np.median(spread)))
+
     def _facing_as_mapped(self, heading_rad: Optional[float]) -> np.ndarray:
         """Per column: whether the robot faces the way the mapping drive faced at that node,
-        relative to the anchor (all True without headings, or with the gate off)."""
+        given the map-to-odometry heading offset (all True without headings, or with the gate
+        off)."""
         tolerance = self.config.localiser.relocalise_heading_tolerance_deg
-        if (self._headings is None or heading_rad is None or self._anchor_heading is None
-                or tolerance >= 180.0):
+        offset = self.heading_offset()
+        if heading_rad is None or offset is None or tolerance >= 180.0:
             return np.ones(len(self.node_ids), dtype=bool)
-        if self._heading_offsets is None or self._heading_offsets[0] != self._anchor:
-            base = self._headings[self._anchor]
-            self._heading_offsets = (self._anchor, np.array([self._headings[n] - base for n in self.node_ids]))
-        expected = self._anchor_heading + self._heading_offsets[1]
+        expected = self._heading_of_column + offset
         error = np.angle(np.exp(1j * (float(heading_rad) - expected)))     # wrapped to (-pi, pi]
         return np.abs(error) <= math.radians(tolerance)
 
@@ -351,7 +373,7 @@ class Navigator:
                        heading_rad: Optional[float], policy: PolicyInput = None) -> NavigationStep:
         decision = self._supervisor.tick(row)
         if decision.confirmed_node is not None:
-            self._anchor, self._anchor_heading = decision.confirmed_node, heading_rad
+            self._set_anchor(decision.confirmed_node, heading_rad)
             self._hint = None if heading_rad is None else (decision.confirmed_node, float(heading_rad))
             self._remember(decision.confirmed_node)
             self.voter.reset()

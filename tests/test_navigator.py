@@ -2,7 +2,7 @@
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, List, Optional
+from typing import Callable, List, Optional, Sequence
 
 import numpy as np
 import pytest
@@ -505,3 +505,44 @@ def test_local_relocalisation_waits_until_the_robot_faces_the_way_the_map_did():
     steps = _lost_then_relocalise(CONFIG, view, lost_heading=2.0)
     assert steps[-1].planned_path[0] == 4
     assert sum(s.velocity.w_radps for s in steps if s.state is NavState.RELOCALISING) == 0
+
+
+def _confirm_along_chain(config: NavigationConfig, headings_at: Sequence[float]):
+    """Chain 0 -> ... -> 9, the map facing 0 everywhere: localise at node 0, then drive on while
+    the view matches node k = 1, 2, ... in turn, the odometry heading ``headings_at[k]`` there;
+    returns the navigator and the nodes it confirmed."""
+    graph, _ = chain(10)
+    nav = Navigator(graph, list(range(10)), 9, config, node_headings={n: 0.0 for n in range(10)})
+    confirmed = []
+    for node, heading in enumerate(headings_at):
+        view = np.full(10, 0.1)
+        view[node] = 0.9
+        for _ in range(12):
+            step = nav.tick(view, thirds=lambda n: (0.2, 0.9, 0.2), heading_rad=heading)
+            if step.current_node is not None and (not confirmed or confirmed[-1] != step.current_node):
+                confirmed.append(step.current_node)
+    return nav, confirmed
+
+
+def test_the_heading_gate_takes_the_median_offset_of_the_last_confirmations():
+    from dataclasses import replace
+    # odometry runs 0.3 rad ahead of the map; node 3 was confirmed while the robot faced 1.5 rad
+    # off (an early confirmation at a corner)
+    headings = [0.3, 0.3, 0.3, 1.8, 0.3]
+    last_only = CONFIG
+    assert last_only.localiser.relocalise_heading_confirmations == 1
+    nav, confirmed = _confirm_along_chain(last_only, headings[:4])
+    assert confirmed == [0, 1, 2, 3]
+    assert nav.heading_offset() == pytest.approx(1.8)      # the corner's offset turns the gate
+    median = replace(CONFIG, localiser=replace(CONFIG.localiser, relocalise_heading_confirmations=5))
+    nav, confirmed = _confirm_along_chain(median, headings[:4])
+    assert confirmed == [0, 1, 2, 3]
+    assert nav.heading_offset() == pytest.approx(0.3)      # the median keeps it
+    # offsets either side of +-pi: the median is near pi, not near 0
+    nav, _ = _confirm_along_chain(median, [3.1, -3.1, 3.0, -3.0])
+    assert abs(abs(nav.heading_offset()) - math.pi) < 0.15
+    # a map without headings has no offset and no gate
+    graph, _ = chain(10)
+    assert Navigator(graph, list(range(10)), 9, median).heading_offset() is None
+    with pytest.raises(ValueError, match="relocalise_heading_confirmations"):
+        replace(CONFIG.localiser, relocalise_heading_confirmations=0)
