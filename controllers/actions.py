@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import enum
 
-from robot.hal import STOP as ZERO_VELOCITY
-from robot.hal import VelocityCommand
-
 from controllers.config import ActionSpeeds
+from core.hal import STOP as ZERO_VELOCITY
+from core.hal import VelocityCommand
 
 
 class Action(enum.Enum):

@@ -2,14 +2,15 @@
 
 One frozen dataclass per concern, gathered in :class:`NavigationConfig`. Every field is checked
 in ``__post_init__`` and a bad value raises ``ValueError`` naming the field, which
-``robot.configfile.load_config`` turns into an error naming the YAML file and the dotted field.
+``core.configfile.load_config`` turns into an error naming the YAML file and the dotted field.
 
 All similarities are cosines of L2-normalised descriptors (AnyLoc-style VLAD), in [-1, 1];
 in practice they are in [0, 1]. The paper gives no threshold values; the defaults below are
 placeholders for VLAD cosines (unrelated indoor places around 0.2-0.4, the same place under
-another lighting around 0.7-0.9) and are meant to be replaced by thresholds derived from the
-map with :meth:`Thresholds.from_map`. The defaults equal ``Thresholds.from_map(0.45, 0.80)``
-rounded: nodes added below 0.45, a node re-seen at its pose scoring 0.80.
+another lighting around 0.7-0.9) and apply only with ``episode.thresholds_from_map: false``; by
+default the thresholds are derived from the map with :meth:`Thresholds.from_map`, placed by the
+fractions of :class:`ThresholdFractions` (``navigation.threshold_fractions``), the one place
+those fractions live.
 """
 
 from __future__ import annotations
@@ -18,22 +19,8 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Optional
 
-from robot.hal import VelocityCommand
-
-
-def _check_similarity(name: str, value: float) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and -1.0 <= value <= 1.0):
-        raise ValueError(f"{name} must be a cosine similarity in [-1, 1], got {value!r}")
-
-
-def _check_positive(name: str, value: float) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-
-
-def _check_count(name: str, value: int, minimum: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+from core.hal import VelocityCommand
+from core.validate import check_bool, check_count, check_positive, check_range, check_similarity
 
 
 @dataclass(frozen=True)
@@ -65,7 +52,7 @@ class Thresholds:
 
     def __post_init__(self) -> None:
         for name in ("t_milestone", "t_change_node", "t_limited_control", "t_lost"):
-            _check_similarity(name, getattr(self, name))
+            check_similarity(name, getattr(self, name))
         if not self.t_lost < min(self.t_change_node, self.t_milestone):
             raise ValueError(
                 f"t_lost ({self.t_lost}) must be below t_change_node ({self.t_change_node}) and "
@@ -73,54 +60,67 @@ class Thresholds:
                 "which is not being lost")
 
     @classmethod
-    def from_map(cls, t_add_new_node: float, self_similarity: float = 1.0, *,
-                 milestone_fraction: float = 0.6, change_fraction: float = 0.45,
-                 lost_fraction: float = 0.15, t_limited_control: Optional[float] = None,
-                 thirds_self_similarity: Optional[float] = None,
-                 control_fraction: float = 0.6) -> "Thresholds":
+    def from_map(cls, t_add_new_node: float, self_similarity: float = 1.0,
+                 fractions: Optional["ThresholdFractions"] = None, *,
+                 t_limited_control: Optional[float] = None) -> "Thresholds":
         """Thresholds derived from the map's own statistics.
 
         The mapper adds a node when the similarity to the last node drops below
         ``t_add_new_node``, so two consecutive nodes score about ``t_add_new_node`` against each
         other, while a view taken at a node scores about ``self_similarity`` against it (1.0
         under identical conditions; under other lighting measure it, e.g. as the median
-        similarity between the map's keyframes and views re-taken at their poses, or between
-        each keyframe and the frames recorded right after it). Between two nodes the similarity
-        to a node therefore moves within the band ``[t_add_new_node, self_similarity]``, and the
-        thresholds are placed as fractions of that band above ``t_add_new_node``:
+        similarity between each keyframe and the frames recorded right after it). Between two
+        nodes the similarity to a node therefore moves within the band
+        ``[t_add_new_node, self_similarity]``, and the thresholds are placed as fractions of that
+        band (``fractions``, default :class:`ThresholdFractions`):
 
-        * ``t_milestone``   = add + ``milestone_fraction`` x band: confirm a node when the view is
+        * ``t_milestone``   = add + ``milestone`` x band: confirm a node when the view is
           clearly closer to it than a neighbouring node is;
-        * ``t_change_node`` = add + ``change_fraction`` x band: the robot has left a node
+        * ``t_change_node`` = add + ``change_node`` x band: the robot has left a node
           (below ``t_milestone``, a hysteresis band against noise);
-        * ``t_lost``        = add - ``lost_fraction`` x band: worse than the view from the
+        * ``t_lost``        = add - ``lost`` x band: worse than the view from the
           neighbouring node, so no nearby node is in view.
 
-        ``t_limited_control`` is taken as given, else as ``control_fraction`` x
-        ``thirds_self_similarity`` (the median, over the map's nodes, of the best score of a
-        node image's own thirds against its full descriptor), else the class default.
+        ``t_limited_control``: the thirds' threshold, which does not follow the node spacing;
+        default ``fractions.control_contrast`` (the contrast scale of
+        :func:`controllers.voter.contrast_thirds`).
         """
-        _check_similarity("t_add_new_node", t_add_new_node)
-        _check_similarity("self_similarity", self_similarity)
+        fractions = ThresholdFractions() if fractions is None else fractions
+        check_similarity("t_add_new_node", t_add_new_node)
+        check_similarity("self_similarity", self_similarity)
         if not self_similarity > t_add_new_node:
             raise ValueError(f"self_similarity ({self_similarity}) must exceed t_add_new_node "
                              f"({t_add_new_node}); otherwise no band is left for the thresholds")
-        for name, value in (("milestone_fraction", milestone_fraction),
-                            ("change_fraction", change_fraction), ("lost_fraction", lost_fraction),
-                            ("control_fraction", control_fraction)):
-            if not (math.isfinite(value) and 0.0 < value < 1.0):
-                raise ValueError(f"{name} must be in (0, 1), got {value!r}")
         band = self_similarity - t_add_new_node
-        if t_limited_control is None:
-            if thirds_self_similarity is not None:
-                _check_similarity("thirds_self_similarity", thirds_self_similarity)
-                t_limited_control = control_fraction * thirds_self_similarity
-            else:
-                t_limited_control = cls.t_limited_control
-        return cls(t_milestone=t_add_new_node + milestone_fraction * band,
-                   t_change_node=t_add_new_node + change_fraction * band,
-                   t_limited_control=t_limited_control,
-                   t_lost=max(-1.0, t_add_new_node - lost_fraction * band))
+        return cls(t_milestone=t_add_new_node + fractions.milestone * band,
+                   t_change_node=t_add_new_node + fractions.change_node * band,
+                   t_limited_control=fractions.control_contrast if t_limited_control is None else t_limited_control,
+                   t_lost=max(-1.0, t_add_new_node - fractions.lost * band))
+
+
+@dataclass(frozen=True)
+class ThresholdFractions:
+    """Where :meth:`Thresholds.from_map` places the thresholds in the band between the
+    similarity of two consecutive nodes (``T_add_new_node``) and that of a view taken at a node
+    (the map's self-similarity). The defaults are the values the paper harness runs with."""
+
+    #: t_milestone = T_add_new_node + milestone x band: low, because under other lighting than
+    #: the mapping run a view at a node often scores little above its neighbours' level
+    milestone: float = 0.25
+    #: t_change_node = T_add_new_node + change_node x band (below milestone: hysteresis)
+    change_node: float = 0.15
+    #: t_lost = T_add_new_node - lost x band
+    lost: float = 0.1
+    #: t_limited_control when the voter sees contrast scores (episode.thirds_contrast): a third
+    #: votes when the target is closer to the node it resembles most than to a typical node
+    control_contrast: float = 0.5
+
+    def __post_init__(self) -> None:
+        for name in ("milestone", "change_node", "lost", "control_contrast"):
+            check_range(name, getattr(self, name), 0.0, 1.0, low_open=True, high_open=True)
+        if not self.change_node < self.milestone:
+            raise ValueError(f"change_node ({self.change_node}) must be below milestone ({self.milestone}): "
+                             "a node is left below the level at which it is confirmed")
 
 
 @dataclass(frozen=True)
@@ -142,8 +142,8 @@ class SimilarityFilterConfig:
     measurement_std: float = 0.05
 
     def __post_init__(self) -> None:
-        _check_positive("process_std", self.process_std)
-        _check_positive("measurement_std", self.measurement_std)
+        check_positive("process_std", self.process_std)
+        check_positive("measurement_std", self.measurement_std)
 
 
 @dataclass(frozen=True)
@@ -175,13 +175,12 @@ class SupervisorConfig:
     goal_settle_ticks: int = 10
 
     def __post_init__(self) -> None:
-        _check_count("window_behind", self.window_behind, 0)
-        _check_count("window_ahead", self.window_ahead, 1)
-        _check_count("lost_patience_ticks", self.lost_patience_ticks, 1)
-        _check_count("progress_patience_ticks", self.progress_patience_ticks, 1)
-        _check_count("goal_settle_ticks", self.goal_settle_ticks, 0)
-        if not isinstance(self.confirm_best_of_map, bool):
-            raise ValueError(f"confirm_best_of_map must be true or false, got {self.confirm_best_of_map!r}")
+        check_count("window_behind", self.window_behind, 0)
+        check_count("window_ahead", self.window_ahead, 1)
+        check_count("lost_patience_ticks", self.lost_patience_ticks, 1)
+        check_count("progress_patience_ticks", self.progress_patience_ticks, 1)
+        check_count("goal_settle_ticks", self.goal_settle_ticks, 0)
+        check_bool("confirm_best_of_map", self.confirm_best_of_map)
 
 
 @dataclass(frozen=True)
@@ -247,21 +246,17 @@ class LocaliserConfig:
     relocalise_heading_confirmations: int = 1
 
     def __post_init__(self) -> None:
-        _check_count("confirm_ticks", self.confirm_ticks, 1)
-        _check_count("relocalise_hops", self.relocalise_hops, 0)
-        _check_count("relocalise_heading_confirmations", self.relocalise_heading_confirmations, 1)
-        tol = self.relocalise_heading_tolerance_deg
-        if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not 0.0 < tol <= 180.0:
-            raise ValueError(f"relocalise_heading_tolerance_deg must be a number of degrees in (0, 180], got {tol!r}")
-        _check_positive("full_turn_rad", self.full_turn_rad)
-        _check_count("max_search_ticks", self.max_search_ticks, 1)
-        _check_count("neighbourhood_hops", self.neighbourhood_hops, 0)
+        check_count("confirm_ticks", self.confirm_ticks, 1)
+        check_count("relocalise_hops", self.relocalise_hops, 0)
+        check_count("relocalise_heading_confirmations", self.relocalise_heading_confirmations, 1)
+        check_range("relocalise_heading_tolerance_deg", self.relocalise_heading_tolerance_deg, 0.0, 180.0,
+                    low_open=True, what="a number of degrees")
+        check_positive("full_turn_rad", self.full_turn_rad)
+        check_count("max_search_ticks", self.max_search_ticks, 1)
+        check_count("neighbourhood_hops", self.neighbourhood_hops, 0)
         for name in ("min_margin", "second_look_tolerance", "first_view_margin", "first_view_slack"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < 1.0:
-                raise ValueError(f"{name} must be a number in [0, 1), got {value!r}")
-        if not isinstance(self.second_look, bool):
-            raise ValueError(f"second_look must be true or false, got {self.second_look!r}")
+            check_range(name, getattr(self, name), 0.0, 1.0, high_open=True)
+        check_bool("second_look", self.second_look)
 
 
 @dataclass(frozen=True)
@@ -305,10 +300,12 @@ class ActionSpeeds:
 @dataclass(frozen=True)
 class NavigationConfig:
     """Everything the navigator needs besides the map. Load from YAML with
-    ``robot.configfile.load_config(NavigationConfig, path)``; use :meth:`with_thresholds` to
+    ``core.configfile.load_config(NavigationConfig, path)``; use :meth:`with_thresholds` to
     plug in thresholds derived from a map (:meth:`Thresholds.from_map`)."""
 
     thresholds: Thresholds = field(default_factory=Thresholds)
+    #: how the thresholds are derived from a map (with episode.thresholds_from_map, the default)
+    threshold_fractions: ThresholdFractions = field(default_factory=ThresholdFractions)
     filter: SimilarityFilterConfig = field(default_factory=SimilarityFilterConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
     localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
@@ -344,18 +341,13 @@ class NavigationConfig:
     heading_hint_tolerance_deg: float = 10.0
 
     def __post_init__(self) -> None:
-        if not isinstance(self.heading_hints, bool):
-            raise ValueError(f"heading_hints must be true or false, got {self.heading_hints!r}")
+        check_bool("heading_hints", self.heading_hints)
         for name in ("heading_hint_min_deg", "heading_hint_tolerance_deg"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < 180.0:
-                raise ValueError(f"{name} must be a number of degrees in (0, 180), got {value!r}")
-        if not isinstance(self.hold_action_between_votes, bool):
-            raise ValueError(f"hold_action_between_votes must be true or false, "
-                             f"got {self.hold_action_between_votes!r}")
-        _check_count("no_vote_patience_ticks", self.no_vote_patience_ticks, 1)
-        _check_count("blind_forward_ticks", self.blind_forward_ticks, 0)
-        _check_count("max_relocalisations", self.max_relocalisations, 0)
+            check_range(name, getattr(self, name), 0.0, 180.0, low_open=True, high_open=True, what="a number of degrees")
+        check_bool("hold_action_between_votes", self.hold_action_between_votes)
+        check_count("no_vote_patience_ticks", self.no_vote_patience_ticks, 1)
+        check_count("blind_forward_ticks", self.blind_forward_ticks, 0)
+        check_count("max_relocalisations", self.max_relocalisations, 0)
 
     def with_thresholds(self, thresholds: Thresholds) -> "NavigationConfig":
         """The same configuration with other thresholds (e.g. ``Thresholds.from_map(...)``)."""

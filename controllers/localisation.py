@@ -23,6 +23,7 @@ import numpy as np
 
 from controllers.actions import Action
 from controllers.config import LocaliserConfig
+from core.angles import wrap_angle
 
 NodeId = Hashable
 
@@ -117,7 +118,7 @@ class TurnMeter:
                 raise LocalisationError(f"heading_rad must be finite, got {heading_rad!r}")
             if self._last is not None:
                 delta = heading_rad - self._last
-                self.turned_rad += math.atan2(math.sin(delta), math.cos(delta))
+                self.turned_rad += wrap_angle(delta)
             self._last = float(heading_rad)
         return self.turned_rad
 

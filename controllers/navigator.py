@@ -59,17 +59,24 @@ from typing import Callable, Hashable, Mapping, Optional, Sequence, Tuple, Union
 import networkx as nx
 import numpy as np
 
-from robot.hal import VelocityCommand, wrap_angle
-
 from controllers.actions import Action, action_velocity
 from controllers.config import NavigationConfig
-from controllers.localisation import (InitialLocaliser, Localisation, LocalisationError,
-                                      LocaliserStatus, TurnMeter, localise_goal_image,
-                                      plain_node_ids, similarity_row)
+from controllers.localisation import (
+    InitialLocaliser,
+    Localisation,
+    LocalisationError,
+    LocaliserStatus,
+    TurnMeter,
+    localise_goal_image,
+    plain_node_ids,
+    similarity_row,
+)
 from controllers.planner import GlobalPlanner, PlanningError
 from controllers.similarity_filter import SimilarityFilter
 from controllers.supervisor import NodeSwitchSupervisor, SupervisorDecision, SupervisorState
 from controllers.voter import Third, ThirdScores, TwoCycleVoter, VoteKind, VoteResult
+from core.angles import wrap_angle
+from core.hal import VelocityCommand
 
 NodeId = Hashable
 ThirdsInput = Union[Callable[[NodeId], Sequence[float]], np.ndarray, None]

@@ -35,8 +35,8 @@ builder, so sampling a video with ``--every N`` changes them; ``frame_index`` is
 The walkthrough's end adds no node: its last frames are still similar to the last node (that is
 why no node was added), so that node already stands for them.
 
-:func:`build_map` is the batch form for a recorded walkthrough: calibrate (if asked), build,
-optimise.
+:func:`maps.pipeline.build_map` is the batch form for a recorded walkthrough: calibrate (if
+asked), build, optimise. Loop-closure candidates are verified by :mod:`maps.sequence`.
 """
 
 from __future__ import annotations
@@ -45,25 +45,19 @@ import json
 import math
 from collections import deque
 from dataclasses import asdict, dataclass, field
-from typing import Collection, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
-from maps.config import MappingConfig, Thresholds
-from maps.graph import MapError, TopoMap
-from robot.hal import Pose2D
+from core.hal import Pose2D
+from maps.config import MapThresholds
+from maps.graph import MapBuildError, MapError, TopoMap
+from maps.sequence import SequenceCheck, check_sequence
 
 #: a descriptor's norm may differ from 1 by this much (float16 storage, accumulated rounding)
 NORM_TOLERANCE = 1e-2
 
 EVENT_KINDS = ("first_node", "node", "loop_closure")
-
-
-
-
-
-class MapBuildError(MapError):
-    """Bad input to the builder (wrong shape, not normalised, frames out of order)."""
 
 
 @dataclass(frozen=True)
@@ -123,7 +117,7 @@ class BuildLog:
     at after the frame).
     """
 
-    thresholds: Thresholds
+    thresholds: MapThresholds
     events: tuple[MapEvent, ...]
     frame_index: np.ndarray
     stamp_s: np.ndarray
@@ -200,95 +194,11 @@ class BuildLog:
         try:
             meta = json.loads(bytes(np.asarray(arrays["meta_json"], dtype=np.uint8)).decode("utf-8"))
             events = tuple(MapEvent.from_dict(e) for e in meta["events"])
-            thresholds = Thresholds.from_dict(meta["thresholds"])
+            thresholds = MapThresholds.from_dict(meta["thresholds"])
         except (ValueError, KeyError, TypeError) as exc:
             raise MapError(f"build log: unreadable events or thresholds ({exc})") from None
         return cls(thresholds=thresholds, events=events, travelled_m=meta.get("travelled_m"),
                    **{k: np.asarray(arrays[k]) for k in names[:-1]})
-
-
-@dataclass(frozen=True)
-class SequenceCheck:
-    """The outcome of :func:`check_sequence`.
-
-    ``frames``: descriptors compared (the candidate's frame included). ``support``: their mean
-    similarity to the tracked node of the candidate's stretch of route; ``rival``: their mean best
-    similarity to any other eligible node (``None`` when there is none); ``wins``: the fraction of
-    them whose best match lies on the tracked stretch. ``path``: the tracked nodes, in order.
-    """
-
-    frames: int
-    support: float
-    rival: Optional[float]
-    wins: float
-    path: tuple[int, ...]
-    accepted: bool
-
-
-def route_region(topomap: TopoMap, node: int, hops: int, forward: bool = True,
-                 exclude: Collection[int] = ()) -> list[int]:
-    """``node`` and the nodes up to ``hops`` arcs after it (``forward``) or before it, following
-    arc directions (the stretch of route a robot at ``node`` drives into, or came from), minus
-    ``exclude``, in breadth-first order (``node`` first unless excluded)."""
-    g = topomap.graph
-    seen, frontier = [node], [node]
-    for _ in range(hops):
-        nxt = []
-        for n in frontier:
-            for m in (g.successors(n) if forward else g.predecessors(n)):
-                if m not in seen:
-                    seen.append(m)
-                    nxt.append(m)
-        frontier = nxt
-    skip = set(exclude)
-    return [n for n in seen if n not in skip]
-
-
-def check_sequence(window: np.ndarray, topomap: TopoMap, start: int, *, eligible: Collection[int],
-                   hops: int, min_support: float, forward: bool = True) -> SequenceCheck:
-    """Does a stretch of frames keep following one stretch of the map? (SeqSLAM-like)
-
-    ``window`` (K, D): the candidate frame first, then the frames after it (or, with
-    ``forward=False``, the frames before it, latest first). The check tracks a position along
-    the map's arcs: it starts at ``start`` and, frame by frame, moves to whichever node within
-    ``hops`` arcs ahead (behind, when not ``forward``) of it matches the frame best, so a real
-    revisit is followed as the robot drives on. Each frame's score on the stretch is compared
-    with its best score at any other node of ``eligible`` (the nodes a loop closure could go to).
-
-    Accepted when the mean score on the stretch is at least ``min_support``, above the mean best
-    score elsewhere, and the stretch has the best match for at least half of the frames. Two
-    look-alike corners match each other for a while, but once the routes through them part the
-    true place wins; a real revisit keeps matching.
-    """
-    w = np.asarray(window, dtype=np.float32)
-    if w.ndim != 2 or w.shape[0] == 0:
-        raise MapBuildError(f"check_sequence needs (K >= 1, D) frames, got shape {w.shape}")
-    ids = topomap.node_ids.tolist()
-    row = {n: k for k, n in enumerate(ids)}
-    eligible = set(int(n) for n in eligible)
-    if start not in eligible:
-        raise MapBuildError(f"check_sequence: start node {start} is not among the eligible nodes")
-    sims = w @ topomap.descriptors.T                                   # (K, N)
-    pos, path, on_route = start, [start], {start}
-    own, best_other = [], []
-    for k in range(w.shape[0]):
-        reach = [n for n in route_region(topomap, pos, hops, forward=forward) if n in eligible]
-        on_route.update(reach)
-        scores = sims[k, [row[n] for n in reach]]
-        pos = reach[int(np.argmax(scores))]
-        if pos != path[-1]:
-            path.append(pos)
-        own.append(float(scores.max()))
-        others = [row[n] for n in eligible if n not in on_route]
-        best_other.append(float(sims[k, others].max()) if others else -np.inf)
-    own_a, other_a = np.asarray(own), np.asarray(best_other)
-    support = float(own_a.mean())
-    has_rivals = bool(np.isfinite(other_a).all())
-    rival = float(other_a.mean()) if has_rivals else None
-    wins = float(np.mean(own_a > other_a))
-    accepted = support >= min_support and (rival is None or (support > rival and wins >= 0.5))
-    return SequenceCheck(frames=int(w.shape[0]), support=support, rival=rival, wins=wins,
-                         path=tuple(path), accepted=bool(accepted))
 
 
 @dataclass(frozen=True)
@@ -320,9 +230,9 @@ class MapBuilder:
     ``dim`` fixes the descriptor dimension; when ``None`` the first frame sets it.
     """
 
-    def __init__(self, thresholds: Thresholds, dim: Optional[int] = None):
-        if not isinstance(thresholds, Thresholds):
-            raise MapBuildError(f"MapBuilder needs Thresholds, got {type(thresholds).__name__}")
+    def __init__(self, thresholds: MapThresholds, dim: Optional[int] = None):
+        if not isinstance(thresholds, MapThresholds):
+            raise MapBuildError(f"MapBuilder needs MapThresholds, got {type(thresholds).__name__}")
         self.thresholds = thresholds
         self._dim = dim
         self._map: Optional[TopoMap] = None
@@ -516,7 +426,7 @@ class MapBuilder:
         return common, why
 
     @staticmethod
-    def _check_note(check: SequenceCheck, t: Thresholds) -> str:
+    def _check_note(check: SequenceCheck, t: MapThresholds) -> str:
         rival = "no other node" if check.rival is None else f"{check.rival:.3f} elsewhere"
         return (f"over {check.frames} frames the route stretch {list(check.path)} matched "
                 f"{check.support:.3f} (T_loop_verify {t.T_loop_verify:.3f}) vs {rival}, best in "
@@ -612,62 +522,3 @@ class MapBuilder:
         self._last_checked_index = int(frame_index)
         self._last_checked_stamp_s = stamp_s
         return d
-
-
-@dataclass(frozen=True)
-class MapBuild:
-    """What :func:`build_map` made. ``calibration`` is ``None`` for explicit thresholds;
-    ``merge`` is ``None`` when the optimisation pass was skipped. ``topomap`` is the final
-    (optimised) map; ``raw_map`` the builder's map before merging."""
-
-    topomap: TopoMap
-    raw_map: TopoMap
-    log: BuildLog
-    thresholds: Thresholds
-    calibration: Optional[object] = None     # maps.calibration.Calibration
-    merge: Optional[object] = None           # maps.optimise.MergeResult
-    warnings: tuple[str, ...] = field(default_factory=tuple)
-
-    def summary(self) -> dict:
-        """JSON-able numbers for a person (and ``summary.json``): frames, nodes, loop closures,
-        merges, and metres when the walkthrough had true poses."""
-        out = self.log.summary()
-        lengths = [a.length_m for a in self.topomap.arcs() if a.kind == "sequential" and a.length_m is not None]
-        out.update({
-            "nodes": len(self.topomap), "nodes_before_merge": len(self.raw_map), "arcs": self.topomap.n_arcs,
-            "merged_nodes": {str(k): v for k, v in self.merge.merged.items()} if self.merge is not None else {},
-            "merges_rejected": [list(r) for r in self.merge.rejected] if self.merge is not None else [],
-            "mean_arc_length_m": float(np.mean(lengths)) if lengths else None,
-            "calibrated": self.calibration is not None, "warnings": list(self.warnings),
-        })
-        return out
-
-
-def build_map(descriptors: np.ndarray, config: MappingConfig, *,
-              frame_indices: Optional[Sequence[int]] = None, stamps_s: Optional[Sequence[float]] = None,
-              true_poses: Optional[Sequence[Pose2D]] = None, optimise: bool = True,
-              progress: bool = False) -> MapBuild:
-    """Batch mapping of a recorded walkthrough: thresholds (calibrated or explicit), the
-    builder over every frame, then the merge pass with ``T_merge`` (verified on the
-    walkthrough's frames)."""
-    from maps.calibration import calibrate
-    from maps.optimise import merge_near_duplicates
-
-    x = np.asarray(descriptors, dtype=np.float32)
-    calibration = None
-    if config.calibrated:
-        calibration = calibrate(x, config)
-        thresholds = calibration.thresholds
-    else:
-        thresholds = config.explicit_thresholds()
-    builder = MapBuilder(thresholds, dim=x.shape[1] if x.ndim == 2 else None)
-    builder.add_frames(x, frame_indices, stamps_s, true_poses, progress=progress)
-    raw, log = builder.finish()
-    merge = None
-    if optimise:
-        keyframe_seq = {e.node_id: e.seq for e in log.node_events()}
-        merge = merge_near_duplicates(raw, thresholds, frames=x, keyframe_seq=keyframe_seq)
-    final = merge.topomap if merge is not None else raw
-    warnings = tuple(calibration.warnings) if calibration is not None else ()
-    return MapBuild(topomap=final, raw_map=raw, log=log, thresholds=thresholds,
-                    calibration=calibration, merge=merge, warnings=warnings)

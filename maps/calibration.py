@@ -1,4 +1,4 @@
-"""Thresholds from the walkthrough itself, instead of hand-tuning (the paper's main limitation).
+"""MapThresholds from the walkthrough itself, instead of hand-tuning (the paper's main limitation).
 
 :func:`calibrate` looks at the descriptors of every frame of a walkthrough (in order) and
 measures three things:
@@ -55,7 +55,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from maps.config import MappingConfig, Thresholds
+from maps.config import MappingConfig, MapThresholds
 from maps.graph import MapError
 
 #: the quantile of the frames' best look-alike similarity taken as the spurious level
@@ -90,7 +90,7 @@ class SimilaritySample:
 class Calibration:
     """Calibrated thresholds plus the statistics (JSON-able) and warnings behind them."""
 
-    thresholds: Thresholds
+    thresholds: MapThresholds
     stats: dict
     warnings: tuple[str, ...] = ()
 
@@ -147,7 +147,7 @@ def _first_lag_below(curve: np.ndarray, level: float) -> int | None:
 
 def calibrate(descriptors: np.ndarray, config: MappingConfig, *, max_lag: int = 300,
               max_sample_frames: int = 1500) -> Calibration:
-    """Derive :class:`Thresholds` from a walkthrough's (N, D) descriptors (see module docstring).
+    """Derive :class:`MapThresholds` from a walkthrough's (N, D) descriptors (see module docstring).
 
     ``config`` gives ``sparsity``, ``loop_exclude_recent_nodes`` and ``loop_verify_hops``.
     Deterministic (no random sampling). Raises :class:`CalibrationError` when the walkthrough is
@@ -216,7 +216,7 @@ def calibrate(descriptors: np.ndarray, config: MappingConfig, *, max_lag: int = 
         warnings.append(f"T_loop_closure {t_loop:.3f} (the spurious level) is above the similarity of frames half "
                         f"a node apart ({revisit_level:.3f}): loop closures will need near-exact revisits")
 
-    thresholds = Thresholds(
+    thresholds = MapThresholds(
         T_add_new_node=float(np.clip(t_add, -1.0, 1.0)), T_interval=t_interval,
         T_add_distance=float(np.clip(t_add_distance, -1.0, 1.0)),
         T_loop_closure=float(np.clip(t_loop, -1.0, 1.0)), T_merge=float(np.clip(t_merge, -1.0, 1.0)),

@@ -3,10 +3,10 @@
 Two objects:
 
 * :class:`MappingConfig` is what a person writes in ``configs/`` (loaded with
-  ``robot.configfile.load_config(MappingConfig, path)``): explicit thresholds, plus
+  ``core.configfile.load_config(MappingConfig, path)``): explicit thresholds, plus
   ``calibrated`` and the single ``sparsity`` knob used when the thresholds are derived
   automatically (see :mod:`maps.calibration`).
-* :class:`Thresholds` is the set of numbers a map was actually built with. It is what the
+* :class:`MapThresholds` is the set of numbers a map was actually built with. It is what the
   builder and the optimisation pass take, and what the map file records.
 
 All similarities are cosines of L2-normalised descriptors, so they lie in [-1, 1]. All frame
@@ -16,23 +16,14 @@ caller's frame labels.
 
 from __future__ import annotations
 
-import math
 from dataclasses import asdict, dataclass
 from typing import Mapping
 
-
-def _check_similarity(name: str, value: float) -> None:
-    if not (isinstance(value, (int, float)) and math.isfinite(value) and -1.0 <= value <= 1.0):
-        raise ValueError(f"{name}: a cosine similarity must be a finite number in [-1, 1], got {value!r}")
-
-
-def _check_count(name: str, value: int, least: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < least:
-        raise ValueError(f"{name}: expected an integer >= {least}, got {value!r}")
+from core.validate import check_bool, check_count, check_range, check_similarity
 
 
 @dataclass(frozen=True)
-class Thresholds:
+class MapThresholds:
     """The numbers a map is built with (explicit or calibrated); recorded in the map file.
 
     See :class:`MappingConfig` for what each one does.
@@ -53,18 +44,18 @@ class Thresholds:
 
     def __post_init__(self) -> None:
         for name in ("T_add_new_node", "T_add_distance", "T_loop_closure", "T_merge", "T_loop_verify"):
-            _check_similarity(name, getattr(self, name))
-        _check_count("T_interval", self.T_interval, 1)
-        _check_count("loop_min_gap_frames", self.loop_min_gap_frames, 0)
-        _check_count("loop_exclude_recent_nodes", self.loop_exclude_recent_nodes, 0)
-        _check_count("loop_verify_frames", self.loop_verify_frames, 0)
-        _check_count("loop_verify_hops", self.loop_verify_hops, 0)
+            check_similarity(name, getattr(self, name))
+        check_count("T_interval", self.T_interval, 1)
+        check_count("loop_min_gap_frames", self.loop_min_gap_frames, 0)
+        check_count("loop_exclude_recent_nodes", self.loop_exclude_recent_nodes, 0)
+        check_count("loop_verify_frames", self.loop_verify_frames, 0)
+        check_count("loop_verify_hops", self.loop_verify_hops, 0)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, object]) -> "Thresholds":
+    def from_dict(cls, data: Mapping[str, object]) -> "MapThresholds":
         """Rebuild from :meth:`to_dict`; raises ``ValueError`` naming a missing or bad field.
 
         Fields with a default (the sequence-verification ones) may be missing: maps built before
@@ -153,16 +144,13 @@ class MappingConfig:
     sparsity: float = 0.5
 
     def __post_init__(self) -> None:
-        if not isinstance(self.calibrated, bool):
-            raise ValueError(f"calibrated: expected true or false, got {self.calibrated!r}")
-        if not (isinstance(self.sparsity, (int, float)) and math.isfinite(self.sparsity)
-                and 0.0 <= self.sparsity <= 1.0):
-            raise ValueError(f"sparsity: expected a number in [0, 1], got {self.sparsity!r}")
+        check_bool("calibrated", self.calibrated)
+        check_range("sparsity", self.sparsity, 0.0, 1.0)
         self.explicit_thresholds()   # validates the explicit values with field names
 
-    def explicit_thresholds(self) -> Thresholds:
+    def explicit_thresholds(self) -> MapThresholds:
         """The explicit thresholds of this config (what ``calibrated: false`` builds with)."""
-        return Thresholds(T_add_new_node=self.T_add_new_node, T_interval=self.T_interval,
+        return MapThresholds(T_add_new_node=self.T_add_new_node, T_interval=self.T_interval,
                           T_add_distance=self.T_add_distance, T_loop_closure=self.T_loop_closure,
                           T_merge=self.T_merge, loop_min_gap_frames=self.loop_min_gap_frames,
                           loop_exclude_recent_nodes=self.loop_exclude_recent_nodes,

@@ -21,13 +21,17 @@ from typing import Optional
 import networkx as nx
 import numpy as np
 
-from robot.hal import Pose2D
+from core.hal import Pose2D
 
 ARC_KINDS = ("sequential", "loop_closure", "merged")
 
 
 class MapError(ValueError):
     """A map is invalid or cannot be built, saved or loaded. The message says what and where."""
+
+
+class MapBuildError(MapError):
+    """Bad input to the builder (wrong shape, not normalised, frames out of order)."""
 
 
 @dataclass(frozen=True)

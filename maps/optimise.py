@@ -14,7 +14,7 @@ Rules:
   exclusion rule, in map terms. Neighbours are similar because they are near, not because the
   route came back;
 * with sequence verification on (``loop_verify_frames > 0``) a pair must also pass the builder's
-  check (:func:`maps.builder.check_sequence`), the "their neighbours are alike too" test: the
+  check (:func:`maps.sequence.check_sequence`), the "their neighbours are alike too" test: the
   later node's keyframe and the ``loop_verify_frames`` walkthrough frames after it (or, without
   the walkthrough's frames, the later node and its successors) must follow the earlier node and
   the route on from it better than anything else, at least ``T_loop_verify`` on average; and the same
@@ -37,9 +37,9 @@ from typing import Mapping, Optional
 import networkx as nx
 import numpy as np
 
-from maps.builder import SequenceCheck, check_sequence, route_region
-from maps.config import Thresholds
+from maps.config import MapThresholds
 from maps.graph import MapError, TopoMap
+from maps.sequence import SequenceCheck, check_sequence, route_region
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def _nearby_pairs(topomap: TopoMap, hops: int, gap_frames: int) -> set[tuple[int
     return near
 
 
-def _verify_pair(topomap: TopoMap, earlier: int, later: int, near: set, thresholds: Thresholds,
+def _verify_pair(topomap: TopoMap, earlier: int, later: int, near: set, thresholds: MapThresholds,
                  frames: Optional[np.ndarray], keyframe_seq: Optional[Mapping[int, int]]) -> SequenceCheck:
     """The builder's sequence check for merging ``later`` into ``earlier``: forwards (what
     follows ``later`` must follow the route on from ``earlier``) and, when ``earlier`` has
@@ -106,7 +106,7 @@ def _verify_pair(topomap: TopoMap, earlier: int, later: int, near: set, threshol
     return checks[0]
 
 
-def merge_near_duplicates(topomap: TopoMap, thresholds: Thresholds, *, frames: Optional[np.ndarray] = None,
+def merge_near_duplicates(topomap: TopoMap, thresholds: MapThresholds, *, frames: Optional[np.ndarray] = None,
                           keyframe_seq: Optional[Mapping[int, int]] = None) -> MergeResult:
     """Return a new map with near-duplicate nodes merged (see the module docstring).
 

@@ -21,12 +21,13 @@ from pathlib import Path
 from typing import Callable, Mapping, Optional, Sequence
 
 import numpy as np
+from matplotlib import patheffects
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from matplotlib.patches import FancyArrowPatch
-from matplotlib import patheffects
 
+from core.atomic import save_figure
 from maps.builder import BuildLog
 from maps.calibration import SimilaritySample
 from maps.graph import MapError, TopoMap
@@ -44,11 +45,8 @@ REJECTED_COLOR = "#9467bd"      # purple: far from the loop-closure red, so "no 
 
 
 def _save(fig: Figure, out_path: str | Path, dpi: int) -> Path:
-    out = Path(out_path)
-    out.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
-    fig.savefig(out, dpi=dpi, format="png")
-    return out
+    return save_figure(fig, out_path, dpi=dpi)
 
 
 def _positions(topomap: TopoMap, background: Optional[np.ndarray],

@@ -12,9 +12,9 @@ The manifest's ``files`` table lists every other file with its size and SHA-256,
 and corruption are caught on load.
 
 **Atomic save.** :func:`save_map` writes everything into a fresh hidden folder next to the
-target (``.NAME.saving-PID-RANDOM``), fsyncs every file and the folder, and then swaps it with the
-target in one step (Linux ``renameat2(RENAME_EXCHANGE)``; where that is unavailable, the old map
-is first renamed to ``.NAME.old-RANDOM`` and the new one renamed into place). A crash at any point
+target (``.NAME.saving-PID-RANDOM``, :class:`core.atomic.AtomicFolder`), fsyncs every file and the
+folder, and then swaps it with the target in one step (Linux ``renameat2(RENAME_EXCHANGE)``; where that is unavailable, the old map
+is first renamed to ``.NAME.old-PID-RANDOM`` and the new one renamed into place). A crash at any point
 leaves either the previous map or the new one at the target path; after a crash between the two
 renames of the fallback, :func:`recover_interrupted_save` (run by :func:`load_map` and
 :func:`save_map`) puts the previous map back. Leftover hidden folders of dead saves are removed
@@ -27,16 +27,10 @@ arcs to unknown nodes, a descriptor identity other than the expected one, a newe
 
 from __future__ import annotations
 
-import ctypes
-import errno
 import hashlib
 import io
 import json
 import math
-import os
-import secrets
-import shutil
-import sys
 import time
 import zipfile
 from dataclasses import dataclass, field
@@ -46,12 +40,15 @@ from typing import Mapping, Optional
 import cv2
 import numpy as np
 
+from core.atomic import AtomicFolder, recover_folder
+from core.hal import Pose2D
+from descriptors.base import DescriptorIdentity
 from maps.builder import NORM_TOLERANCE, BuildLog
 from maps.calibration import SimilaritySample
-from maps.config import Thresholds
+from maps.config import MapThresholds
+from maps.descriptor_state import decode_state, encode_state
 from maps.graph import ARC_KINDS, MapError, TopoMap
-from robot.descriptors.base import DescriptorIdentity
-from robot.hal import Pose2D
+from maps.thumbnails import encode_thumbnail
 
 SCHEMA_VERSION = 1
 MANIFEST = "manifest.json"
@@ -59,97 +56,12 @@ DESCRIPTORS = "descriptors.npy"
 STATE = "descriptor_state.npz"
 WALKTHROUGH = "walkthrough.npz"
 THUMBS = "thumbs"
-#: thumbnail width, height in pixels (4:3, like the Limo camera), and JPEG quality
-THUMB_SIZE = (160, 120)
-THUMB_QUALITY = 80
-_SETTINGS_KEY = "__settings_json__"
 
 
 # -- fault injection ---------------------------------------------------------------------
 def _checkpoint(step: str) -> None:
-    """Called after every step of a save. Does nothing; tests replace it to simulate a crash
-    (an exception or ``os._exit``) right after ``step``."""
-
-
-# -- thumbnails --------------------------------------------------------------------------
-def make_thumbnail(rgb: np.ndarray, size: tuple[int, int] = THUMB_SIZE) -> np.ndarray:
-    """Centre-crop an RGB uint8 (H, W, 3) image to the aspect of ``size`` (width, height) and
-    shrink it to ``size``. Keep these instead of full frames while mapping."""
-    img = np.asarray(rgb)
-    if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8 or min(img.shape[:2]) < 2:
-        raise MapError(f"thumbnail source must be an RGB uint8 (H, W, 3) image, got {img.dtype} {img.shape}")
-    w, h = size
-    ih, iw = img.shape[:2]
-    if iw * h > ih * w:                      # too wide: crop the sides
-        cw = max(1, int(round(ih * w / h)))
-        x0 = (iw - cw) // 2
-        img = img[:, x0:x0 + cw]
-    else:
-        ch = max(1, int(round(iw * h / w)))
-        y0 = (ih - ch) // 2
-        img = img[y0:y0 + ch]
-    if img.shape[1] == w and img.shape[0] == h:
-        return np.ascontiguousarray(img)
-    return cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-
-
-def encode_thumbnail(image: np.ndarray | bytes) -> bytes:
-    """The JPEG bytes of a node thumbnail (THUMB_SIZE, THUMB_QUALITY) from an RGB uint8 image, or
-    from JPEG bytes made earlier (kept as they are when already thumbnail-sized). About 5 KB a
-    frame, so a mapping run can keep one for every frame until it knows the keyframes."""
-    if isinstance(image, (bytes, bytearray)):
-        bgr = cv2.imdecode(np.frombuffer(image, dtype=np.uint8), cv2.IMREAD_COLOR)
-        if bgr is None:
-            raise MapError("thumbnail bytes are not a readable JPEG")
-        if bgr.shape[1::-1] == THUMB_SIZE:
-            return bytes(image)
-        image = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
-    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(make_thumbnail(image), cv2.COLOR_RGB2BGR),
-                           [cv2.IMWRITE_JPEG_QUALITY, THUMB_QUALITY])
-    if not ok:
-        raise MapError("could not encode a thumbnail as JPEG")
-    return buf.tobytes()
-
-
-# -- descriptor state --------------------------------------------------------------------
-def _encode_state(state: Mapping[str, object]) -> bytes:
-    """numpy arrays (or array-likes such as CPU tensors) go in as arrays, everything else must be
-    JSON-able and goes in as one JSON settings entry."""
-    if not isinstance(state, Mapping):
-        raise MapError(f"descriptor_state must be a mapping, got {type(state).__name__}")
-    arrays: dict[str, np.ndarray] = {}
-    settings: dict[str, object] = {}
-    for key, value in state.items():
-        if not isinstance(key, str) or not key or key == _SETTINGS_KEY:
-            raise MapError(f"descriptor_state key {key!r} is not allowed")
-        if isinstance(value, np.generic):
-            value = value.item()
-        if isinstance(value, np.ndarray) or (hasattr(value, "__array__") and not isinstance(
-                value, (bool, int, float, str, list, tuple, dict))):
-            arr = np.asarray(value)
-            if arr.dtype == object:
-                raise MapError(f"descriptor_state[{key!r}] is an object array; only numeric arrays are stored")
-            arrays[key] = arr
-            continue
-        try:
-            json.dumps(value)
-        except (TypeError, ValueError) as exc:
-            raise MapError(f"descriptor_state[{key!r}] is neither an array nor JSON-able ({exc})") from None
-        settings[key] = value
-    arrays[_SETTINGS_KEY] = np.frombuffer(json.dumps(settings, sort_keys=True).encode("utf-8"), dtype=np.uint8)
-    buf = io.BytesIO()
-    np.savez(buf, **arrays)
-    return buf.getvalue()
-
-
-def _decode_state(data: bytes, where: str) -> dict:
-    try:
-        with np.load(io.BytesIO(data), allow_pickle=False) as npz:
-            arrays = {k: npz[k] for k in npz.files}
-        settings = json.loads(bytes(arrays.pop(_SETTINGS_KEY)).decode("utf-8"))
-    except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise MapError(f"{where}: not a readable descriptor state ({exc})") from None
-    return {**settings, **arrays}
+    """Called after every step of a save (:class:`core.atomic.AtomicFolder`). Does nothing;
+    tests replace it to simulate a crash (an exception or ``os._exit``) right after ``step``."""
 
 
 # -- small file helpers ------------------------------------------------------------------
@@ -165,81 +77,16 @@ def _npz_bytes(arrays: Mapping[str, np.ndarray]) -> bytes:
     return buf.getvalue()
 
 
-def _write_file(path: Path, data: bytes) -> None:
-    with open(path, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-
-
-def _fsync_dir(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _exchange(a: Path, b: Path) -> bool:
-    """Atomically swap two paths (Linux renameat2 with RENAME_EXCHANGE). False where unsupported."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        fn = ctypes.CDLL(None, use_errno=True).renameat2
-    except (OSError, AttributeError):
-        return False
-    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
-    fn.restype = ctypes.c_int
-    at_fdcwd, rename_exchange = -100, 2
-    if fn(at_fdcwd, os.fsencode(str(a)), at_fdcwd, os.fsencode(str(b)), rename_exchange) == 0:
-        return True
-    err = ctypes.get_errno()
-    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
-        return False
-    raise OSError(err, os.strerror(err), str(b))
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 def _sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 
 
-# -- recovery and cleanup ----------------------------------------------------------------
 def recover_interrupted_save(path: str | Path) -> bool:
     """If a save crashed after moving the previous map aside (fallback swap only), move it back.
 
     Returns True when something was restored.
     """
-    path = Path(path)
-    if path.exists() or path.is_symlink() or not path.parent.is_dir():
-        return False
-    backups = [p for p in path.parent.glob(f".{path.name}.old-*") if (p / MANIFEST).is_file()]
-    if not backups:
-        return False
-    newest = max(backups, key=lambda p: p.stat().st_mtime)
-    os.rename(newest, path)
-    _fsync_dir(path.parent)
-    return True
-
-
-def _remove_debris(path: Path) -> None:
-    """Remove hidden folders left by saves of ``path`` that crashed (their process is gone)."""
-    for p in path.parent.glob(f".{path.name}.saving-*"):
-        pid = p.name.rsplit(".saving-", 1)[1].split("-", 1)[0]
-        if pid.isdigit() and not _pid_alive(int(pid)):
-            shutil.rmtree(p, ignore_errors=True)
-    if path.is_dir():
-        for p in path.parent.glob(f".{path.name}.old-*"):
-            shutil.rmtree(p, ignore_errors=True)
+    return recover_folder(path, complete=lambda p: (p / MANIFEST).is_file())
 
 
 # -- save --------------------------------------------------------------------------------
@@ -248,7 +95,7 @@ def _pose_dict(pose: Optional[Pose2D]) -> Optional[dict]:
 
 
 def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity,
-             descriptor_state: Mapping[str, object], thresholds: Thresholds,
+             descriptor_state: Mapping[str, object], thresholds: MapThresholds,
              thumbnails: Mapping[int, np.ndarray | bytes], calibration: Optional[Mapping] = None,
              log: Optional[BuildLog] = None, similarity: Optional[SimilaritySample] = None,
              merged: Optional[Mapping[int, int]] = None, extra: Optional[Mapping] = None) -> Path:
@@ -257,7 +104,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
     ``identity``: the descriptor's :class:`DescriptorIdentity` (its ``dim`` must match the map).
     ``descriptor_state``: ``descriptor.state_dict()``: arrays plus JSON-able settings.
     ``thresholds``: the thresholds the map was built with. ``thumbnails``: node id -> RGB uint8
-    image (any size; shrunk with :func:`make_thumbnail`) or :func:`encode_thumbnail` bytes, for
+    image (any size; shrunk with :func:`maps.thumbnails.make_thumbnail`) or
+    :func:`maps.thumbnails.encode_thumbnail` bytes, for
     every node; ids of nodes no longer in the map are ignored. ``calibration``: ``Calibration.to_dict()`` when calibrated. ``log`` and
     ``similarity``: the build log and walkthrough similarity sample, for the pictures.
     ``merged``: the optimisation pass's removed -> kept node ids (``MergeResult.merged``).
@@ -268,8 +116,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
     path = Path(path)
     if not isinstance(identity, DescriptorIdentity):
         raise MapError(f"identity must be a DescriptorIdentity, got {type(identity).__name__}")
-    if not isinstance(thresholds, Thresholds):
-        raise MapError(f"thresholds must be a Thresholds, got {type(thresholds).__name__}")
+    if not isinstance(thresholds, MapThresholds):
+        raise MapError(f"thresholds must be a MapThresholds, got {type(thresholds).__name__}")
     if len(topomap) == 0:
         raise MapError("refusing to save an empty map")
     if identity.dim and identity.dim != topomap.dim:
@@ -286,13 +134,11 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
             raise MapError(f"{path}: exists and is not a folder; refusing to replace it")
         if not (path / MANIFEST).is_file() and any(path.iterdir()):
             raise MapError(f"{path}: exists and is not a map folder (no {MANIFEST}); refusing to replace it")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _remove_debris(path)
 
     # everything is encoded before the first byte is written, so a bad input leaves no debris
     files: dict[str, bytes] = {
         DESCRIPTORS: _npy_bytes(np.ascontiguousarray(topomap.descriptors, dtype=np.float32)),
-        STATE: _encode_state(descriptor_state),
+        STATE: encode_state(descriptor_state),
     }
     if log is not None:
         arrays = {f"log_{k}": v for k, v in log.to_arrays().items()}
@@ -334,57 +180,13 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
     except (TypeError, ValueError) as exc:
         raise MapError(f"manifest is not JSON-able (calibration or extra?): {exc}") from None
 
-    tmp = path.parent / f".{path.name}.saving-{os.getpid()}-{secrets.token_hex(4)}"
-    try:
-        os.mkdir(tmp)
-        os.mkdir(tmp / THUMBS)
-        _checkpoint("mkdir")
+    with AtomicFolder(path, checkpoint=lambda step: _checkpoint(step)) as folder:
+        folder.mkdir(THUMBS)
         for name, data in files.items():
-            _write_file(tmp / name, data)
-            _checkpoint(f"write {name}")
-        _write_file(tmp / MANIFEST, manifest_bytes)      # last: a folder with a manifest is complete
-        _checkpoint(f"write {MANIFEST}")
-        _fsync_dir(tmp / THUMBS)
-        _fsync_dir(tmp)
-        _checkpoint("fsync")
-        _swap_into_place(tmp, path)
-    except BaseException:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
-        raise
+            folder.write(name, data)
+        folder.write(MANIFEST, manifest_bytes)          # last: a folder with a manifest is complete
+        folder.commit()
     return path
-
-
-def _swap_into_place(tmp: Path, path: Path) -> None:
-    """Make ``tmp`` the folder at ``path`` in one atomic step, then remove the old one.
-
-    Once the new folder is in place the save is committed; removing the previous folder is
-    best effort (a leftover is removed by the next save).
-    """
-    if not path.exists():
-        os.rename(tmp, path)
-        _fsync_dir(path.parent)
-        _checkpoint("rename into place")
-        return
-    if _exchange(tmp, path):                            # the commit point
-        _fsync_dir(path.parent)
-        _checkpoint("exchange")
-        shutil.rmtree(tmp, ignore_errors=True)          # tmp now holds the previous map
-        _checkpoint("remove previous")
-        return
-    old = path.parent / f".{path.name}.old-{secrets.token_hex(4)}"
-    os.rename(path, old)
-    try:
-        _checkpoint("move previous aside")
-        os.rename(tmp, path)                            # the commit point
-    except BaseException:
-        if not path.exists():                           # put the previous map back at once
-            os.rename(old, path)
-        raise
-    _fsync_dir(path.parent)
-    _checkpoint("rename into place")
-    shutil.rmtree(old, ignore_errors=True)
-    _checkpoint("remove previous")
 
 
 # -- load --------------------------------------------------------------------------------
@@ -397,7 +199,7 @@ class LoadedMap:
     topomap: TopoMap
     identity: DescriptorIdentity
     descriptor_state: dict
-    thresholds: Thresholds
+    thresholds: MapThresholds
     schema_version: int
     calibration: Optional[dict] = None
     log: Optional[BuildLog] = None
@@ -620,7 +422,7 @@ def load_map(path: str | Path, expected_identity: Optional[DescriptorIdentity] =
             raise chk.fail(MANIFEST, f"built with another descriptor than the one in use (map's value "
                                      f"first): {problem}")
     try:
-        thresholds = Thresholds.from_dict(chk.key(MANIFEST, manifest, "thresholds"))
+        thresholds = MapThresholds.from_dict(chk.key(MANIFEST, manifest, "thresholds"))
     except (ValueError, TypeError, AttributeError) as exc:
         raise chk.fail(f"{MANIFEST}: thresholds", str(exc)) from None
 
@@ -639,7 +441,7 @@ def load_map(path: str | Path, expected_identity: Optional[DescriptorIdentity] =
         if node["odom_yaw_rad"] is not None:
             topomap.set_odom_yaw(node["id"], node["odom_yaw_rad"])
     _add_arcs(chk, manifest, topomap)
-    state = _decode_state(files[state_name], f"map {path}: {state_name}")
+    state = decode_state(files[state_name], f"map {path}: {state_name}")
 
     log = similarity = None
     if manifest.get("walkthrough"):

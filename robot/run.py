@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _make_descriptor(config):
-    from robot.descriptors.factory import make_descriptor
+    from descriptors.factory import make_descriptor
 
     return make_descriptor(config.descriptor.backend, **config.descriptor.settings)
 
@@ -106,8 +106,9 @@ def _count(value) -> int:
 
 
 def _mode_map(args, config) -> int:
-    from robot.frame_sources import ImageFolderSource, RecordingSource, Sampling, VideoSource
-    from robot.map_building import build_map_from_frames, world_picture_of, write_json_atomic
+    from core.atomic import write_json
+    from robot.mapping.make import build_map_from_frames, world_picture_of
+    from robot.mapping.sources import ImageFolderSource, RecordingSource, Sampling, VideoSource
 
     sampling = Sampling(every_n=args.every, every_s=args.every_s)
     world_picture = None
@@ -122,8 +123,8 @@ def _mode_map(args, config) -> int:
         source = RecordingSource(out, sampling)
         world_picture = world_picture_of(summary.get("world"), int(summary.get("appearance_seed", 0)))
     else:
-        from robot.walkthrough import drive_walkthrough
-        from sim.world_spec import load_world
+        from robot.mapping.drive import drive_walkthrough
+        from sim.worlds import load_world
 
         world = load_world(args.world)
         out = args.out if args.out is not None else Path("runs") / world.name
@@ -142,13 +143,13 @@ def _mode_map(args, config) -> int:
                                   source=source.description, progress=not args.quiet,
                                   extra={k: summary[k] for k in ("world", "appearance_seed") if k in summary})
     out.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(out / "summary.json", {**summary, "map": str(map_dir), **built.summary})
+    write_json(out / "summary.json", {**summary, "map": str(map_dir), **built.summary})
     _print_map_summary(built.summary, map_dir)
     return 0
 
 
 def _mode_show(args, config) -> int:
-    from robot.map_building import draw_saved_map
+    from robot.mapping.make import draw_saved_map
 
     if args.map is None:
         raise UsageError("--mode show needs --map DIR")
@@ -158,7 +159,7 @@ def _mode_show(args, config) -> int:
 
 
 def _mode_navigate(args, config) -> int:
-    from robot.episode_metrics import format_summary
+    from robot.episode.metrics import format_summary
 
     if args.map is None:
         raise UsageError("--mode navigate needs --map DIR (build one with --mode map)")
@@ -174,7 +175,8 @@ def _mode_navigate(args, config) -> int:
 
 
 def _navigate_sim(args, config):
-    from robot.sim_episode import parse_start, run_sim_navigation
+    from robot.episode.sim import EpisodeOutputs, SimEpisode, run_sim_navigation
+    from robot.episode.start import parse_start
 
     if args.goal is None and args.route is None:
         raise UsageError("--mode navigate needs --goal (node id or image) or --route NAME")
@@ -185,13 +187,13 @@ def _navigate_sim(args, config):
         def make_base(sim_config, start, world, appearance_seed):
             return SerialTwinLimo(world, sim_config, start, appearance_seed=appearance_seed)
     out = args.out if args.out is not None else args.map.parent
-    result = run_sim_navigation(
-        args.world, args.map, _make_descriptor(config), goal=args.goal, route=args.route,
-        start=parse_start(args.start) if args.start is not None else None,
-        appearance_seed=args.appearance_seed, sim_config=config.sim, navigation=config.navigation,
-        episode=config.episode, max_steps=args.max_steps, result_path=args.result,
-        trace_png=args.trace if args.trace is not None else out / "navigation.png",
-        video_path=args.record_video, progress=not args.quiet, make_base=make_base)
+    episode = SimEpisode(args.world, args.map, goal=args.goal, route=args.route,
+                         start=parse_start(args.start) if args.start is not None else None,
+                         appearance_seed=args.appearance_seed, max_steps=args.max_steps)
+    outputs = EpisodeOutputs(result_path=args.result,
+                             trace_png=args.trace if args.trace is not None else out / "navigation.png",
+                             video_path=args.record_video, progress=not args.quiet)
+    result = run_sim_navigation(episode, _make_descriptor(config), config, outputs, make_base=make_base)
     if result.goal.rivals:
         print(f"warning: the goal image also resembles node(s) {', '.join(map(str, result.goal.rivals))} almost as "
               f"much as its node {result.goal.node} (other places; a more distinctive goal picture is safer)",
@@ -201,12 +203,14 @@ def _navigate_sim(args, config):
 
 def _navigate_serial(args, config):
     """A real Limo (or an emulator on a pty): goal node or image, no ground truth."""
+    from core.atomic import write_json
+    from limo.serial_base import LimoSerialBase, LimoSerialConfig
     from maps.store import load_map
-    from robot.episode_metrics import compute_metrics
-    from robot.limo_serial import LimoSerialBase, LimoSerialConfig
-    from robot.navigation import (attach_descriptor, configure_thresholds, parse_goal, resolve_goal,
-                                  run_episode, step_budget)
-    from robot.map_building import write_json_atomic
+    from robot.episode.config import step_budget
+    from robot.episode.goal import parse_goal, resolve_goal
+    from robot.episode.loop import run_episode
+    from robot.episode.metrics import compute_metrics
+    from robot.episode.setup import attach_descriptor, configure_thresholds
 
     if args.port is None:
         raise UsageError("--hal serial needs --port DEV (the base's serial device, e.g. /dev/ttyTHS1)")
@@ -223,7 +227,7 @@ def _navigate_serial(args, config):
         outcome = run_episode(base, loaded.topomap, descriptor, goal.node, nav, budget)
     metrics = compute_metrics(outcome)
     if args.result is not None:
-        write_json_atomic(args.result, {**metrics.to_dict(), "setup": {"map": str(args.map), "goal": goal.source,
+        write_json(args.result, {**metrics.to_dict(), "setup": {"map": str(args.map), "goal": goal.source,
                                                                         "goal_node": goal.node, "port": args.port}})
     return metrics
 
@@ -235,8 +239,8 @@ class UsageError(ValueError):
 def _navigation_input_errors() -> tuple[type[BaseException], ...]:
     """Errors a user causes with navigation arguments: exit 2."""
     from controllers.planner import UnknownNodeError
-    from robot.navigation import GoalImageError
-    from robot.sim_episode import StartError
+    from robot.episode.goal import GoalImageError
+    from robot.episode.start import StartError
     from sim.world_spec import WorldError
 
     return (UnknownNodeError, GoalImageError, StartError, WorldError)
@@ -257,14 +261,14 @@ def main(argv: list[str] | None = None) -> int:
     limit_helper_threads()
     from dataclasses import replace
 
-    from robot.configfile import ConfigError
-    from robot.hal import HalError
+    from core.configfile import ConfigError
+    from core.hal import HalError
+    from descriptors.base import DescriptorError
     from maps.graph import MapError
-    from robot.descriptors.base import DescriptorError
-    from robot.frame_sources import FrameSourceError
-    from robot.recording import RecordingError
+    from robot.mapping.drive import DriveError
+    from robot.mapping.recording import RecordingError
+    from robot.mapping.sources import FrameSourceError
     from robot.settings import load_stack_config
-    from robot.walkthrough import DriveError
 
     try:
         config = load_stack_config(args.config)

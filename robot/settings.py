@@ -12,10 +12,11 @@ from pathlib import Path
 from typing import Any
 
 from controllers.config import NavigationConfig
+from core.configfile import load_config
+from core.validate import check_at_least, check_count, check_range
 from maps.config import MappingConfig
-from robot.configfile import load_config
-from robot.navigation import EpisodeConfig
-from sim.hal import SimConfig
+from robot.episode.config import EpisodeConfig
+from sim.config import SimConfig
 from sim.teleop import TeleopConfig
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -30,23 +31,20 @@ class RecordingConfig:
     time_budget_factor: float = 3.0  # give up after this many times the walkthrough's length at cruise speed
 
     def __post_init__(self) -> None:
-        if self.every_n_ticks < 1:
-            raise ValueError(f"every_n_ticks must be >= 1, got {self.every_n_ticks}")
-        if not 10 <= self.jpeg_quality <= 100:
-            raise ValueError(f"jpeg_quality must be within [10, 100], got {self.jpeg_quality}")
-        if self.time_budget_factor < 1.0:
-            raise ValueError(f"time_budget_factor must be >= 1, got {self.time_budget_factor}")
+        check_count("every_n_ticks", self.every_n_ticks, 1)
+        check_count("jpeg_quality", self.jpeg_quality, 10)
+        check_range("jpeg_quality", self.jpeg_quality, 10, 100)
+        check_at_least("time_budget_factor", self.time_budget_factor, 1.0)
 
 
 @dataclass(frozen=True)
 class DescriptorConfig:
-    backend: str = "effnet-vlad"   # place descriptor: see robot/descriptors/factory.py for the names
+    backend: str = "effnet-vlad"   # place descriptor: see descriptors/factory.py for the names
     settings: dict[str, Any] = field(default_factory=dict)   # backend settings (layer, resolution, clusters, ...)
     fit_max_frames: int = 300      # the VLAD vocabulary is fitted on this many evenly spaced walkthrough frames
 
     def __post_init__(self) -> None:
-        if self.fit_max_frames < 10:
-            raise ValueError(f"fit_max_frames must be >= 10, got {self.fit_max_frames}")
+        check_count("fit_max_frames", self.fit_max_frames, 10)
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,4 @@
-"""The PyBullet backend of the HAL: :class:`SimLimo` (a :class:`robot.hal.RobotBase`) and its
+"""The PyBullet backend of the HAL: :class:`SimLimo` (a :class:`core.hal.RobotBase`) and its
 simulator-only :class:`SimGroundTruth`.
 
 Time is simulated: ``tick()`` steps the physics exactly ``control_period_s / physics_dt_s`` times
@@ -26,81 +26,14 @@ import numpy as np
 import pybullet as p
 import pybullet_data
 
-from robot.hal import (GroundTruth, HalError, Odometry, Pose2D, RobotBase, SensorFrame, VelocityCommand,
-                       VelocityLimits, STOP, wrap_angle)
-from sim.camera import Camera, CameraSpec, check_light
-from sim.limo import LEFT_WHEELS, RIGHT_WHEELS, TRACK_M, WHEEL_RADIUS_M, Limo, body_twist
+from core.angles import wrap_angle
+from core.hal import STOP, GroundTruth, HalError, Odometry, Pose2D, RobotBase, SensorFrame, VelocityCommand
+from limo.geometry import TRACK_M, WHEEL_RADIUS_M, body_twist
+from sim.camera import Camera, check_light
+from sim.config import SimConfig
+from sim.limo import LEFT_WHEELS, RIGHT_WHEELS, Limo
 
 GRAVITY_MPS2 = 9.81
-
-
-class SimConfigError(ValueError):
-    """A :class:`SimConfig` field is invalid; the message names the field."""
-
-
-@dataclass(frozen=True)
-class SimConfig:
-    """Settings of the simulated Limo. Every field is checked in ``__post_init__``."""
-
-    physics_dt_s: float = 1.0 / 240.0      # physics step; PyBullet's default, stable for a 4.8 kg body on 45 mm wheels
-    control_period_s: float = 0.1          # one tick() of the run loop (10 Hz, the paper's camera/decision rate)
-    hfov_deg: float = 65.0                 # camera horizontal FOV; the paper's simulated Limo used 65 deg
-    width_px: int = 320                    # camera image width in pixels
-    height_px: int = 240                   # camera image height in pixels
-    camera_enabled: bool = True            # False: read() returns rgb=None (runs that need no image are ~10x faster)
-    max_v_mps: float = 0.5                 # forward speed limit applied by apply(); Limo nav configs use 0.5-0.6
-    max_w_radps: float = 1.0               # yaw-rate limit applied by apply(); AgileX nav configs use 1.0
-    odom_scale_noise: float = 0.01         # std of the per-period relative error of each side's wheel travel (slip)
-    imu_yaw_rate_noise_radps: float = 0.005  # std of the Gaussian noise on the IMU yaw rate (HI226 class gyro)
-    collision_debounce_s: float = 0.25     # a touch this soon after the last one with the same body is the same collision
-    seed: int = 0                          # seeds every random draw of the simulator (noise)
-    gui: bool = False                      # open the PyBullet window instead of headless DIRECT mode
-
-    def __post_init__(self) -> None:
-        positive = ("physics_dt_s", "control_period_s", "max_v_mps", "max_w_radps")
-        for name in positive:
-            value = getattr(self, name)
-            if not _is_number(value) or not math.isfinite(value) or value <= 0:
-                raise SimConfigError(f"SimConfig.{name} must be a finite number > 0, got {value!r}")
-        for name in ("odom_scale_noise", "imu_yaw_rate_noise_radps", "collision_debounce_s"):
-            value = getattr(self, name)
-            if not _is_number(value) or not math.isfinite(value) or value < 0:
-                raise SimConfigError(f"SimConfig.{name} must be a finite number >= 0, got {value!r}")
-        if self.physics_dt_s > 0.02:
-            raise SimConfigError(f"SimConfig.physics_dt_s must be <= 0.02 s for stable contacts, got {self.physics_dt_s}")
-        ratio = self.control_period_s / self.physics_dt_s
-        if abs(ratio - round(ratio)) > 1e-6 or round(ratio) < 1:
-            raise SimConfigError(
-                f"SimConfig.control_period_s ({self.control_period_s}) must be a whole multiple of "
-                f"physics_dt_s ({self.physics_dt_s}), got ratio {ratio:.6f}")
-        if not _is_number(self.hfov_deg) or not 1.0 <= self.hfov_deg <= 170.0:
-            raise SimConfigError(f"SimConfig.hfov_deg must be a number within [1, 170], got {self.hfov_deg!r}")
-        for name in ("width_px", "height_px"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or not 8 <= value <= 4096:
-                raise SimConfigError(f"SimConfig.{name} must be an integer within [8, 4096], got {value!r}")
-        for name in ("camera_enabled", "gui"):
-            if not isinstance(getattr(self, name), bool):
-                raise SimConfigError(f"SimConfig.{name} must be true or false, got {getattr(self, name)!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise SimConfigError(f"SimConfig.seed must be an integer >= 0, got {self.seed!r}")
-
-    @property
-    def steps_per_tick(self) -> int:
-        """Physics steps in one control period."""
-        return int(round(self.control_period_s / self.physics_dt_s))
-
-    @property
-    def camera(self) -> CameraSpec:
-        return CameraSpec(hfov_deg=self.hfov_deg, width_px=self.width_px, height_px=self.height_px)
-
-    @property
-    def limits(self) -> VelocityLimits:
-        return VelocityLimits(max_v_mps=self.max_v_mps, max_w_radps=self.max_w_radps)
-
-
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 @dataclass

@@ -32,25 +32,26 @@ from dataclasses import dataclass
 
 import pybullet as p
 
-from robot.hal import Pose2D
+from core.hal import Pose2D
+from limo.geometry import (
+    BODY_LENGTH_M,
+    BODY_WIDTH_M,
+    GROUND_CLEARANCE_M,
+    MAX_ANGULAR_ACCEL_RADPS2,
+    MAX_LINEAR_ACCEL_MPS2,
+    TOTAL_MASS_KG,
+    TRACK_M,
+    WHEEL_RADIUS_M,
+    WHEEL_WIDTH_M,
+    WHEELBASE_M,
+    wheel_speeds_radps,
+)
 
-# Geometry and mass (limo.md). The body box is lower than the 251 mm overall height (that counts
-# the sensor mast) so the forward camera at 0.18 m does not see the robot's own deck below ~80 deg HFOV.
-WHEEL_RADIUS_M = 0.045
-WHEEL_WIDTH_M = 0.045
-WHEELBASE_M = 0.200
-TRACK_M = 0.172
-TOTAL_MASS_KG = 4.8
+# The body box is lower than the 251 mm overall height (that counts the sensor mast) so the
+# forward camera at 0.18 m does not see the robot's own deck below ~80 deg HFOV.
 WHEEL_MASS_KG = 0.25
-BODY_LENGTH_M = 0.322
-BODY_WIDTH_M = 0.220
-GROUND_CLEARANCE_M = 0.024
 BODY_TOP_M = 0.13                 # deck height above the floor; the camera sits higher, at 0.18 m
 MAST_TOP_M = 0.20                 # visual-only sensor mast behind the camera (not collidable)
-
-# Acceleration limits from AgileX's navigation configs (limo.md).
-MAX_LINEAR_ACCEL_MPS2 = 2.5
-MAX_ANGULAR_ACCEL_RADPS2 = 3.2
 
 # The robot counts as toppled once its up axis leans more than this from vertical.
 TOPPLE_TILT_RAD = math.radians(45.0)
@@ -70,17 +71,6 @@ _WHEEL_XY = (
 )
 LEFT_WHEELS = (0, 1)
 RIGHT_WHEELS = (2, 3)
-
-
-def wheel_speeds_radps(v_mps: float, w_radps: float) -> tuple[float, float]:
-    """Skid-steer inverse kinematics: (left, right) wheel angular speeds in rad/s."""
-    half = w_radps * TRACK_M / 2.0
-    return (v_mps - half) / WHEEL_RADIUS_M, (v_mps + half) / WHEEL_RADIUS_M
-
-
-def body_twist(left_mps: float, right_mps: float) -> tuple[float, float]:
-    """Skid-steer forward kinematics: wheel rim speeds (m/s) -> body (v_mps, w_radps)."""
-    return (left_mps + right_mps) / 2.0, (right_mps - left_mps) / TRACK_M
 
 
 def _ramp(current: float, target: float, max_step: float) -> float:

@@ -1,20 +1,20 @@
 """The serial twin: the simulated Limo behind the real serial backend, every command as bytes.
 
-:class:`SerialTwinLimo` is a :class:`~robot.limo_serial.LimoSerialBase` (so a
-:class:`~robot.hal.RobotBase`) whose ``connect()`` first brings up, in this process,
+:class:`SerialTwinLimo` is a :class:`~limo.serial_base.LimoSerialBase` (so a
+:class:`~core.hal.RobotBase`) whose ``connect()`` first brings up, in this process,
 
 * a PyBullet world with the simulated Limo (:class:`PyBulletBaseModel`, a
   :class:`~sim.hal.SimLimo` underneath), which plays the emulator's
-  :class:`~robot.limo_emulator.BaseModel`: wheel odometry (0x311), gyro (0x322), euler yaw
+  :class:`~limo.emulator.models.BaseModel`: wheel odometry (0x311), gyro (0x322), euler yaw
   (0x323) and motion state (0x221) come from the simulated body;
-* the base emulator (:class:`~robot.limo_emulator.LimoEmulator`) on a pseudo-terminal, answering
+* the base emulator (:class:`~limo.emulator.firmware.LimoEmulator`) on a pseudo-terminal, answering
   as the firmware with that model behind it;
 * a camera source (:class:`SimCameraSource`) rendering the simulated camera of that same body
   with the world's light,
 
 and then opens the pty like any serial port. Commands go controller -> ``apply()`` -> writer
 thread -> pty bytes -> emulator parser -> physics; feedback comes back the same way. Truth for
-metrics is :attr:`SerialTwinLimo.ground_truth` (a :class:`~robot.hal.GroundTruth`), exactly as
+metrics is :attr:`SerialTwinLimo.ground_truth` (a :class:`~core.hal.GroundTruth`), exactly as
 with ``SimLimo``, so the run loop can swap one for the other::
 
     with SerialTwinLimo(world, SimConfig(), start, appearance_seed=0) as base:
@@ -54,14 +54,17 @@ from typing import Any, Callable, List, Optional
 import numpy as np
 import pybullet as p
 
-from robot.camera_source import CameraError, CameraFrame
-from robot.hal import GroundTruth, HalError, Pose2D, VelocityCommand, wrap_angle
-from robot.limo_emulator import BaseState, EmulatorConfig, LimoEmulator
-from robot.limo_serial import LimoSerialBase, LimoSerialConfig
-from sim.camera import Camera, CameraSpec, check_light
-from sim.hal import SimConfig, SimLimo
-from sim.limo import WHEEL_RADIUS_M
-
+from core.angles import wrap_angle
+from core.hal import GroundTruth, HalError, Pose2D, VelocityCommand
+from core.validate import check_positive
+from limo.camera import CameraError, CameraFrame
+from limo.emulator.firmware import EmulatorConfig, LimoEmulator
+from limo.emulator.models import BaseState
+from limo.geometry import WHEEL_RADIUS_M
+from limo.serial_base import LimoSerialBase, LimoSerialConfig
+from sim.camera import Camera, check_light
+from sim.config import CameraSpec, SimConfig
+from sim.hal import SimLimo
 
 #: connect() fails when the simulated camera has rendered nothing by then
 FIRST_IMAGE_TIMEOUT_S = 5.0
@@ -87,10 +90,7 @@ class SerialTwinConfig:
 
     def __post_init__(self) -> None:
         for name in ("camera_rate_hz", "stop_settle_s"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                    or value <= 0:
-                raise SerialTwinError(f"SerialTwinConfig.{name} must be a finite number > 0, got {value!r}")
+            check_positive(f"SerialTwinConfig.{name}", getattr(self, name), error=SerialTwinError)
         if not isinstance(self.emulator, EmulatorConfig):
             raise SerialTwinError(f"SerialTwinConfig.emulator must be an EmulatorConfig, got {self.emulator!r}")
 
@@ -115,20 +115,20 @@ def render_light_of(world: Any, appearance_seed: int) -> dict:
     the same light :class:`~sim.hal.SimLimo` renders with."""
     if world is None:
         return {}
+    from sim.appearance import apply_appearance  # noqa: PLC0415
     from sim.world import render_light_kwargs  # noqa: PLC0415 - a plain floor needs no world code
-    from sim.world_spec import apply_appearance  # noqa: PLC0415
 
     return check_light(render_light_kwargs(apply_appearance(world, appearance_seed).light))
 
 
 class PyBulletBaseModel:
-    """The emulator's :class:`~robot.limo_emulator.BaseModel` played by a simulated Limo in a world.
+    """The emulator's :class:`~limo.emulator.models.BaseModel` played by a simulated Limo in a world.
 
     Owns one :class:`~sim.hal.SimLimo` (its control period set to one physics step, camera off)
     and the lock that serialises every use of its PyBullet client. ``step(dt_s, v, w)`` applies
     the command (SimLimo clips it to ``sim_config``'s limits and ramps it at the Limo's
     acceleration limits) and steps the physics by ``dt_s`` of simulated time in whole physics
-    steps, carrying the remainder. The reported :class:`~robot.limo_emulator.BaseState`:
+    steps, carrying the remainder. The reported :class:`~limo.emulator.models.BaseState`:
 
     * ``left_m``/``right_m``: wheel travel from the wheel joint angles (with ``SimConfig``'s slip
       noise, drawn per physics step here), counted from the last ``reset()``;
@@ -293,9 +293,9 @@ class TwinGroundTruth(GroundTruth):
 
 
 class SimCameraSource:
-    """The simulated camera as a camera source for :class:`~robot.limo_serial.LimoSerialBase`.
+    """The simulated camera as a camera source for :class:`~limo.serial_base.LimoSerialBase`.
 
-    Same use as :class:`robot.camera_source.CameraSource`: ``start()`` renders in a background
+    Same use as :class:`limo.camera.CameraSource`: ``start()`` renders in a background
     thread every ``1 / rate_hz`` s, ``latest()`` returns the newest :class:`CameraFrame` without
     waiting (``None`` before the first), ``close()`` joins the thread; ``read()`` renders one
     frame now. ``stamp_s`` is ``clock()`` (the serial backend's monotonic clock) when the pose
@@ -356,7 +356,7 @@ class SimCameraSource:
             self._stop.wait(max(0.0, next_due - time.monotonic()))
 
     def wait_for_frame(self, timeout_s: float) -> CameraFrame:
-        """Block until the render thread has a frame (as :meth:`robot.camera_source.CameraSource.wait_for_frame`)."""
+        """Block until the render thread has a frame (as :meth:`limo.camera.CameraSource.wait_for_frame`)."""
         deadline = time.monotonic() + timeout_s
         while (frame := self.latest()) is None:
             if time.monotonic() >= deadline:
@@ -457,7 +457,7 @@ class SerialTwinLimo(LimoSerialBase):
 
 
 def _measure(args: argparse.Namespace) -> int:
-    from sim.world_spec import load_world  # noqa: PLC0415
+    from sim.worlds import load_world  # noqa: PLC0415
 
     world = load_world(args.world) if args.world != "none" else None
     start = Pose2D(0.0, 0.0, 0.0)
@@ -527,7 +527,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     parser.add_argument("--height", type=int, default=240, help="camera height in pixels")
     parser.add_argument("--camera-hz", type=float, default=10.0, help="renders per second (default 10)")
     args = parser.parse_args(argv)
-    from robot.configfile import ConfigError  # noqa: PLC0415
+    from core.configfile import ConfigError  # noqa: PLC0415
 
     try:
         return _measure(args)

@@ -3,7 +3,7 @@
 SPL (Anderson et al. 2018) divides by the *shortest* path from the start to the goal, not by the
 length of the route as it was taught. This module computes it on an occupancy grid of the
 world: every cell whose centre is closer than ``clearance_m`` to a wall or prop surface
-(``sim.world_spec.footprints``) is blocked, and Dijkstra runs over the free cells with 16
+(``sim.geometry.footprints``) is blocked, and Dijkstra runs over the free cells with 16
 neighbours (steps of 1 and 2 cells straight, sqrt(2) diagonal and sqrt(5) knight moves), which
 stays within about 3 % of the Euclidean length in open space (8 neighbours: up to 8 %).
 
@@ -25,7 +25,8 @@ from typing import Sequence
 
 import numpy as np
 
-from sim.world_spec import WorldSpec, footprints
+from sim.geometry import footprints
+from sim.world_spec import WorldSpec
 
 #: The Limo's circumscribed radius, rounded up (m).
 LIMO_CLEARANCE_M = 0.2

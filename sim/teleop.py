@@ -18,7 +18,9 @@ from typing import Sequence
 
 import numpy as np
 
-from robot.hal import Pose2D, VelocityCommand, wrap_angle
+from core.angles import wrap_angle
+from core.hal import Pose2D, VelocityCommand
+from core.validate import check_positive
 
 
 @dataclass(frozen=True)
@@ -33,8 +35,7 @@ class TeleopConfig:
     def __post_init__(self) -> None:
         for name in ("cruise_v_mps", "max_w_radps", "lookahead_m", "turn_in_place_rad",
                      "heading_gain", "goal_tolerance_m"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+            check_positive(name, getattr(self, name))
 
 
 class WaypointTeleop:

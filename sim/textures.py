@@ -36,6 +36,8 @@ from typing import Literal, Optional
 import cv2
 import numpy as np
 
+from core.atomic import write_bytes
+
 TextureKind = Literal["plain", "noise", "poster", "sign", "door", "tiles", "carpet", "wood", "window"]
 KINDS: tuple[str, ...] = ("plain", "noise", "poster", "sign", "door", "tiles", "carpet", "wood", "window")
 
@@ -125,16 +127,11 @@ def texture_png(spec: TextureSpec, cache_dir: Optional[Path] = None) -> Path:
     path = folder / f"{spec.kind}_{spec.key()}.png"
     if path.is_file():
         return path
-    folder.mkdir(parents=True, exist_ok=True)
     ok, data = cv2.imencode(".png", cv2.cvtColor(make_texture(spec), cv2.COLOR_RGB2BGR))
     if not ok:
         raise OSError(f"could not encode texture {spec}")
-    # write then rename: parallel runs may build the same texture at the same time
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".png.tmp")
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(data.tobytes())
-    os.replace(tmp, path)
-    return path
+    # atomic: parallel runs may build the same texture at the same time
+    return write_bytes(path, data.tobytes())
 
 
 # ---------------------------------------------------------------- generators

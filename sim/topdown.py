@@ -22,9 +22,12 @@ from typing import Optional, Sequence
 import cv2
 import numpy as np
 
+from core.atomic import write_bytes
+from sim.appearance import apply_appearance
+from sim.geometry import polyline_length_m, prop_footprints, sample_polyline, wall_footprint
 from sim.textures import make_texture
-from sim.world_spec import (DecalSpec, PropSpec, WallSpec, WorldError, WorldSpec, apply_appearance, load_world,
-                            polyline_length_m, prop_footprints, sample_polyline, wall_footprint)
+from sim.world_spec import DecalSpec, PropSpec, WallSpec, WorldError, WorldSpec
+from sim.worlds import load_world
 
 RGB = tuple[int, int, int]
 
@@ -111,12 +114,11 @@ class TopDown:
         return TopDown(self.image.copy(), self.px_per_m, self.x_min_m, self.y_max_m, list(self._label_boxes))
 
     def save_png(self, path: str | Path) -> Path:
-        """Write the picture as PNG (creating folders); returns the path."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), cv2.cvtColor(self.image, cv2.COLOR_RGB2BGR)):
-            raise OSError(f"could not write {path}")
-        return path
+        """Write the picture as PNG atomically (creating folders); returns the path."""
+        ok, data = cv2.imencode(".png", cv2.cvtColor(self.image, cv2.COLOR_RGB2BGR))
+        if not ok:
+            raise OSError(f"could not encode {path} as PNG")
+        return write_bytes(path, data.tobytes())
 
 
 def render_topdown(spec: WorldSpec, appearance_seed: int = 0, px_per_m: float = 40.0,

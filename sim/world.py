@@ -3,7 +3,7 @@
 ``build_world(client_id, spec, appearance_seed)`` creates every body of the world in the given
 client (always passing ``physicsClientId``) and returns a :class:`BuiltWorld` with the body ids by
 role and the light as keyword arguments for ``p.getCameraImage``. The appearance seed goes
-through :func:`sim.world_spec.apply_appearance` first (seed 0: the world as written).
+through :func:`sim.appearance.apply_appearance` first (seed 0: the world as written).
 
 How things are made, for TinyRenderer's sake (its cost grows with triangles and covered pixels):
 
@@ -28,8 +28,9 @@ import numpy as np
 import pybullet as p
 import pybullet_data
 
+from sim.appearance import apply_appearance
 from sim.textures import TextureSpec, texture_png
-from sim.world_spec import DecalSpec, LightSpec, PartSpec, PropSpec, WallSpec, WorldSpec, apply_appearance
+from sim.world_spec import DecalSpec, LightSpec, PartSpec, PropSpec, WallSpec, WorldSpec
 
 # decals float this far in front of the wall so the depth test never lets the wall win
 _DECAL_GAP_M = 0.004

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from robot.hal import Pose2D
+from core.hal import Pose2D
 
 
 def arc_sequence(steps_rad: np.ndarray, dim: int = 8, start_rad: float = 0.0) -> np.ndarray:

@@ -17,13 +17,10 @@ from typing import Dict, List, Optional, Tuple
 import networkx as nx
 import numpy as np
 
-from robot.hal import Pose2D, VelocityCommand
+from core.angles import wrap_angle
+from core.hal import Pose2D, VelocityCommand
 
 THIRD_OFFSETS_RAD = (0.38, 0.0, -0.38)   # left, middle, right: 65 deg HFOV split in three
-
-
-def wrap(angle: float) -> float:
-    return math.atan2(math.sin(angle), math.cos(angle))
 
 
 @dataclass
@@ -61,7 +58,7 @@ class SyntheticPlaces:
         # the node's view looks along its heading: aim at a point ahead of the node
         cx = target.x_m + self.lookahead_m * math.cos(target.yaw_rad)
         cy = target.y_m + self.lookahead_m * math.sin(target.yaw_rad)
-        bearing_error = wrap(math.atan2(cy - pose.y_m, cx - pose.x_m) - pose.yaw_rad)
+        bearing_error = wrap_angle(math.atan2(cy - pose.y_m, cx - pose.x_m) - pose.yaw_rad)
         visible = math.exp(-pose.distance_to(target) ** 2 / (2 * 2.0 ** 2))
         scores = [0.15 + 0.6 * visible * math.exp(-(bearing_error - o) ** 2 / (2 * 0.3 ** 2))
                   for o in THIRD_OFFSETS_RAD]

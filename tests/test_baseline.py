@@ -15,6 +15,8 @@ import pytest
 import torch
 
 from controllers.actions import Action
+from core.hal import Pose2D
+from descriptors.factory import make_descriptor
 from maps.store import load_map
 from robot.baseline import BaselineFileError, SptmPolicy, load_baseline
 from robot.baseline.expert import CLASSES, ExpertConfig, NodeTargets, expert_action, heading_error_rad
@@ -23,17 +25,23 @@ from robot.baseline.features import FeatureSettings, ImageFeatures, as_thumbnail
 from robot.baseline.fit import TrainConfig, train_head
 from robot.baseline.head import load_head, save_head
 from robot.baseline.track import WalkthroughTrack
-from robot.descriptors.factory import make_descriptor
-from robot.frame_sources import RecordingSource
-from robot.hal import Pose2D
-from robot.map_building import build_map_from_frames
+from robot.episode.sim import EpisodeOutputs, SimEpisode, run_sim_navigation
+from robot.mapping.make import build_map_from_frames
+from robot.mapping.sources import RecordingSource
 from robot.settings import load_stack_config
-from robot.sim_episode import run_sim_navigation
-from robot.walkthrough import drive_walkthrough
-from sim.world_spec import load_world
+from sim.worlds import load_world
 
 TINY = Path(__file__).parent / "data" / "tiny_world.yaml"
-torch.set_num_threads(1)   # the machine is shared; batch-1 features gain little from more
+pytestmark = pytest.mark.slow      # expert drives in PyBullet and training
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_torch_thread():
+    """One torch thread, as the harness's workers train and run it (restored afterwards)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
 
 
 @pytest.fixture(scope="module")
@@ -42,12 +50,11 @@ def world():
 
 
 @pytest.fixture(scope="module")
-def tiny_map(tmp_path_factory, world):
-    """The tiny world's walkthrough driven once and mapped (tiny stand-in place descriptor)."""
+def tiny_map(tmp_path_factory, world, tiny_mapping_run):
+    """The session's drive of the tiny world (conftest) mapped with the tiny stand-in descriptor."""
     out = tmp_path_factory.mktemp("baseline")
     config = load_stack_config()
-    drive_walkthrough(world, config, out / "drive", progress=False)
-    source = RecordingSource(out / "drive")
+    source = RecordingSource(tiny_mapping_run)
     build_map_from_frames(source, make_descriptor("tiny"), config.mapping, out / "map", total=len(source),
                           progress=False, extra={"world": world.name})
     return load_map(out / "map")
@@ -250,8 +257,9 @@ def test_sptm_policy_drives_an_episode_in_the_simulator(trained, tiny_map, featu
     counting = _CountingPolicy(policy)
     gx, gy, _ = load_world(TINY).routes.evaluation["short"].goal
     goal = min(tiny_map.topomap.nodes(), key=lambda n: math.hypot(n.true_pose.x_m - gx, n.true_pose.y_m - gy))
-    result = run_sim_navigation(TINY, tiny_map.path, make_descriptor("tiny"), goal=goal.node_id, start="short",
-                                max_steps=50, progress=False, loaded_map=tiny_map, action_policy=counting)
+    result = run_sim_navigation(SimEpisode(TINY, tiny_map.path, goal=goal.node_id, start="short", max_steps=50),
+                                make_descriptor("tiny"), outputs=EpisodeOutputs(progress=False),
+                                loaded_map=tiny_map, action_policy=counting)
     assert result.setup["method"] == "sptm"
     assert result.outcome.steps > 5
     assert counting.chosen and set(counting.chosen) <= set(CLASSES)

@@ -5,8 +5,15 @@ import math
 
 import pytest
 
-from robot.bench.diagnosis import (StepLogError, confirmation_counts, diagnose, map_node_poses, node_poses,
-                                   read_step_log, route_goal)
+from robot.bench.diagnosis import (
+    StepLogError,
+    confirmation_counts,
+    diagnose,
+    map_node_poses,
+    node_poses,
+    read_step_log,
+    route_goal,
+)
 
 POSES = {0: (0.0, 0.0, 0.0), 1: (1.0, 0.0, 0.0), 2: (2.0, 0.0, 0.0), 3: (10.0, 0.0, math.pi)}
 
@@ -90,7 +97,7 @@ def test_read_step_log_names_the_file_and_line(tmp_path):
 
 
 def test_route_goal_reads_the_true_goal_of_an_evaluation_route_from_the_world_spec():
-    from sim.world_spec import load_world
+    from sim.worlds import load_world
 
     spec = load_world("hospital")
     route = spec.routes.evaluation["easy"]

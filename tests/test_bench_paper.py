@@ -10,7 +10,9 @@ import pytest
 
 from robot.bench import paper
 from robot.bench.trials import MAX_OFFSET_M, MAX_OFFSET_YAW_DEG, plan_trials
-from sim.world_spec import load_world
+from sim.worlds import load_world
+
+pytestmark = pytest.mark.slow      # the paper harness on the tiny world: maps, a baseline, episodes
 
 TINY = str(Path(__file__).parent / "data" / "tiny_world.yaml")
 

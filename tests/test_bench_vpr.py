@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from skimage import data
 
+from core.hal import Pose2D, SensorFrame
+from descriptors.efficientnet_lite_spec import block_channels
 from robot.bench.__main__ import main as bench_main
-from robot.descriptors.efficientnet_lite import block_channels
-from robot.hal import Pose2D, SensorFrame
-from robot.recording import RecordingWriter
+from robot.mapping.recording import RecordingWriter
 
 PHOTOS = ["astronaut", "camera", "coffee", "chelsea", "rocket", "coins", "moon", "page", "text",
           "immunohistochemistry", "hubble_deep_field", "clock", "cell", "colorwheel"]

@@ -7,9 +7,10 @@ import pybullet as p
 import pybullet_data
 import pytest
 
-from robot.hal import Pose2D
-from sim.camera import Camera, CameraError, CameraSpec, check_light, vertical_fov_deg
-from sim.hal import SimConfig, SimLimo
+from core.hal import Pose2D
+from sim.camera import Camera, check_light
+from sim.config import CameraError, CameraSpec, SimConfig, vertical_fov_deg
+from sim.hal import SimLimo
 
 DISTANCE_M = 3.0       # the pole's distance from the lens
 

@@ -6,8 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from robot.camera_source import CameraError, CameraSource
-from robot.hal import HalError
+from core.hal import HalError
+from limo.camera import CameraError, CameraSource
 
 # BGR colours as OpenCV writes them; the source must hand out RGB
 BGR_FRAMES = [(0, 0, 255), (0, 255, 0), (255, 0, 0), (0, 255, 255)]  # red, green, blue, yellow

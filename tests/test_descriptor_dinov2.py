@@ -18,11 +18,17 @@ import pytest
 import torch
 from skimage import data
 
-from robot.descriptors import dinov2
-from robot.descriptors.base import DescriptorError
-from robot.descriptors.dinov2 import (DinoV2Vit, Dinov2Extractor, VitConfig, expected_shapes,
-                                      interpolate_pos_embed, load_dinov2)
-from robot.descriptors.factory import descriptor_from_state, make_descriptor
+from descriptors import dinov2
+from descriptors.base import DescriptorError
+from descriptors.dinov2 import (
+    Dinov2Extractor,
+    DinoV2Vit,
+    VitConfig,
+    expected_shapes,
+    interpolate_pos_embed,
+    load_dinov2,
+)
+from descriptors.factory import descriptor_from_state, make_descriptor
 
 D, DEPTH, HEADS = 384, 12, 6          # ViT-S/14
 W_PX, H_PX = 224, 168                 # 16 x 12 patches: small enough for one core

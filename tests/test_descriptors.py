@@ -7,11 +7,12 @@ import pytest
 import torch
 from skimage import data
 
-from robot.descriptors.base import Descriptor, DescriptorError, DescriptorIdentity
-from robot.descriptors.efficientnet_lite import INPUT_MEAN, INPUT_STD, load_efficientnet_lite0
-from robot.descriptors.factory import BACKENDS, descriptor_from_state, make_descriptor
-from robot.descriptors.preprocess import resize_rgb
-from robot.descriptors.vlad import VladVocabulary, cosine_kmeans, l2_normalise
+from descriptors.base import Descriptor, DescriptorError, DescriptorIdentity
+from descriptors.efficientnet_lite import load_efficientnet_lite0
+from descriptors.efficientnet_lite_spec import INPUT_MEAN, INPUT_STD
+from descriptors.factory import BACKENDS, descriptor_from_state, make_descriptor
+from descriptors.preprocess import resize_rgb
+from descriptors.vlad import VladVocabulary, cosine_kmeans, l2_normalise
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""Every HAL backend passes the same conformance script (robot/hal_check.py).
+"""Every HAL backend passes the same conformance script (core/hal_check.py).
 
 To check a new backend, add a factory to BACKENDS: a callable that returns a fresh, unconnected
 base. 
@@ -8,9 +8,10 @@ import math
 
 import pytest
 
-from robot.hal import HalError, Pose2D, RobotBase, VelocityCommand
-from robot.hal_check import check_base
-from sim.hal import SimConfig, SimConfigError, SimLimo
+from core.hal import HalError, Pose2D, RobotBase, VelocityCommand
+from core.hal_check import check_base
+from sim.config import SimConfig, SimConfigError
+from sim.hal import SimLimo
 
 
 def _sim_limo() -> RobotBase:
@@ -20,7 +21,7 @@ def _sim_limo() -> RobotBase:
 
 def _sim_limo_in_hospital() -> RobotBase:
     """The same backend inside a textured world (the build_world hook, its floor and light)."""
-    from sim.world_spec import load_world
+    from sim.worlds import load_world
 
     world = load_world("hospital")
     (x0, y0), (x1, y1) = world.routes.walkthrough[:2]
@@ -30,17 +31,17 @@ def _sim_limo_in_hospital() -> RobotBase:
 
 def _serial_limo_on_emulator() -> RobotBase:
     """The serial Limo backend talking real bytes to the base emulator over a pseudo-terminal."""
-    from robot.limo_emulator import EmulatedSerialLimo
-    from robot.limo_serial import LimoSerialConfig
+    from limo.emulated import EmulatedSerialLimo
+    from limo.serial_base import LimoSerialConfig
 
     return EmulatedSerialLimo(LimoSerialConfig(control_period_s=0.05))
 
 
 def _serial_twin_in_hospital() -> RobotBase:
     """The serial backend over a pty to the emulator backed by the PyBullet Limo and sim camera."""
-    from robot.limo_serial import LimoSerialConfig
+    from limo.serial_base import LimoSerialConfig
     from sim.serial_twin import SerialTwinLimo
-    from sim.world_spec import load_world
+    from sim.worlds import load_world
 
     world = load_world("hospital")
     (x0, y0), (x1, y1) = world.routes.walkthrough[:2]
@@ -57,7 +58,12 @@ BACKENDS = {
 }
 
 
-@pytest.mark.parametrize("make_base", list(BACKENDS.values()), ids=list(BACKENDS))
+#: backends that build a world in PyBullet or run a serial twin in real time: the slow lane
+SLOW_BACKENDS = {"sim-hospital", "serial-twin-hospital"}
+
+
+@pytest.mark.parametrize("make_base", [pytest.param(make, id=name, marks=pytest.mark.slow if name in SLOW_BACKENDS else ())
+                                       for name, make in BACKENDS.items()])
 def test_backend_conforms_to_hal(make_base):
     check_base(make_base)
 

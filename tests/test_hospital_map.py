@@ -23,13 +23,15 @@ import numpy as np
 import pytest
 import torch
 
-from maps.builder import build_map
-from robot.descriptors.factory import make_descriptor
-from robot.map_building import vocabulary_frames
-from robot.recording import iter_rgb, read_recording
+from descriptors.factory import make_descriptor
+from maps.pipeline import build_map
+from robot.mapping.drive import drive_walkthrough
+from robot.mapping.make import vocabulary_frames
+from robot.mapping.recording import iter_rgb, read_recording
 from robot.settings import load_stack_config
-from robot.walkthrough import drive_walkthrough
-from sim.world_spec import load_world
+from sim.worlds import load_world
+
+pytestmark = pytest.mark.slow      # maps the hospital walkthrough with the CNN
 
 LOOP_MATCH_M = 1.5          # the issue: matched nodes' true positions within 1.5 m
 SPURIOUS_M = 3.0            # no loop closure or merge between nodes farther apart than this
@@ -51,7 +53,7 @@ def walkthrough(tmp_path_factory):
     # batch_size is not part of the descriptor's identity: the features are the default ones
     descriptor = make_descriptor(config.descriptor.backend, **{**config.descriptor.settings, "batch_size": 4})
     # one extraction: the vocabulary is fitted on the features of evenly spaced frames, exactly the
-    # frames robot.map_building fits it on, instead of extracting them a second time
+    # frames robot.mapping.make fits it on, instead of extracting them a second time
     features = descriptor.local_features(list(iter_rgb(frames)))
     descriptor.fit_features(np.stack(vocabulary_frames(list(features), config.descriptor.fit_max_frames)))
     x = descriptor.aggregate(features)

@@ -8,11 +8,21 @@ import time
 import pytest
 import serial
 
-from robot.hal import VelocityCommand
-from robot.limo_emulator import (EmulatorConfig, EmulatorError, EmulatorFaults, KinematicModelConfig,
-                                 KinematicUnicycle, LimoEmulator, parse_fault)
-from robot.limo_protocol import (FrameParser, ImuEuler, ImuGyro, MotionState, SystemState,
-                                 WheelOdometry, encode_enable, encode_motion)
+from core.hal import VelocityCommand
+from limo.emulator.__main__ import parse_fault
+from limo.emulator.firmware import EmulatorConfig, EmulatorError, EmulatorFaults, LimoEmulator
+from limo.emulator.models import KinematicModelConfig, KinematicUnicycle
+from limo.protocol import (
+    FrameParser,
+    ImuEuler,
+    ImuGyro,
+    MotionState,
+    SystemState,
+    WheelOdometry,
+    encode_enable,
+    encode_motion,
+)
+from tests.waiting import wait_until
 
 
 def collect(port, seconds, parser=None):
@@ -23,15 +33,6 @@ def collect(port, seconds, parser=None):
     while time.monotonic() < deadline:
         out += parser.feed(port.read(max(1, port.in_waiting)))
     return out
-
-
-def wait_until(predicate, timeout_s, step_s=0.005):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step_s)
-    return predicate()
 
 
 @pytest.fixture
@@ -190,8 +191,9 @@ def test_fault_specs_parse_and_bad_ones_are_named():
         EmulatorFaults(flip_bit_prob=-0.1)
 
 
+@pytest.mark.slow     # a subprocess
 def test_cli_prints_a_device_that_answers_and_exits():
-    proc = subprocess.Popen([sys.executable, "-m", "robot.limo_emulator", "--duration", "1.0",
+    proc = subprocess.Popen([sys.executable, "-m", "limo.emulator", "--duration", "1.0",
                              "--battery-v", "11.1", "--error-bits", "0x0002"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -207,8 +209,9 @@ def test_cli_prints_a_device_that_answers_and_exits():
         proc.wait()
 
 
+@pytest.mark.slow     # a subprocess
 def test_cli_rejects_a_bad_fault_with_a_message():
-    result = subprocess.run([sys.executable, "-m", "robot.limo_emulator", "--fault", "melt"],
+    result = subprocess.run([sys.executable, "-m", "limo.emulator", "--fault", "melt"],
                             capture_output=True, text=True, timeout=30)
     assert result.returncode == 2
     assert "unknown fault 'melt'" in result.stderr and "Traceback" not in result.stderr

@@ -5,18 +5,16 @@ import math
 import pybullet as p
 import pytest
 
-from robot.hal import Pose2D, VelocityCommand
-from sim.hal import SimConfig, SimLimo
-from sim.limo import BODY_LENGTH_M
+from core.angles import wrap_angle
+from core.hal import Pose2D, VelocityCommand
+from limo.geometry import BODY_LENGTH_M
+from sim.config import SimConfig
+from sim.hal import SimLimo
 
 SETTLE_S = 0.5          # the acceleration ramps need at most 0.32 s (1 rad/s at 3.2 rad/s^2)
 MEASURE_S = 2.0
 TOLERANCE = 0.10
 GRID = [(v, w) for v in (0.0, 0.2, 0.5) for w in (-1.0, -0.5, 0.0, 0.5, 1.0) if (v, w) != (0.0, 0.0)]
-
-
-def _unwrap(delta: float) -> float:
-    return (delta + math.pi) % (2 * math.pi) - math.pi
 
 
 def measure_twist(base: SimLimo, v_mps: float, w_radps: float) -> tuple[float, float]:
@@ -32,7 +30,7 @@ def measure_twist(base: SimLimo, v_mps: float, w_radps: float) -> tuple[float, f
         base.tick()
         pose = truth.true_pose()
         path_m += pose.distance_to(prev)   # chords of 0.1 s arcs: under 0.01% short at 1 rad/s
-        turn_rad += _unwrap(pose.yaw_rad - prev.yaw_rad)
+        turn_rad += wrap_angle(pose.yaw_rad - prev.yaw_rad)
         prev = pose
     assert not truth.toppled()
     return path_m / MEASURE_S, turn_rad / MEASURE_S
@@ -71,7 +69,7 @@ def test_wheel_odometry_follows_the_drive(base):
     odom, pose = base.read().odometry, base.ground_truth.true_pose()
     travelled = math.hypot(odom.x_m - start.x_m, odom.y_m - start.y_m)
     assert travelled == pytest.approx(pose.distance_to(start_pose), rel=0.05)
-    assert _unwrap(odom.yaw_rad - start.yaw_rad) == pytest.approx(_unwrap(pose.yaw_rad - start_pose.yaw_rad), rel=0.05)
+    assert wrap_angle(odom.yaw_rad - start.yaw_rad) == pytest.approx(wrap_angle(pose.yaw_rad - start_pose.yaw_rad), rel=0.05)
     assert odom.v_mps == pytest.approx(0.3, rel=0.05) and odom.w_radps == pytest.approx(0.4, rel=0.1)
     assert odom.right_m - start.right_m > odom.left_m - start.left_m > 0  # turning left: right side travels further
 

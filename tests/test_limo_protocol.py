@@ -4,10 +4,26 @@ import random
 
 import pytest
 
-from robot.limo_protocol import (FRAME_LEN, ControlModeCommand, FrameParser, ImuAccel, ImuEuler,
-                                 ImuGyro, MotionCommand, MotionState, ProtocolError, SystemState,
-                                 UnknownFrame, WheelOdometry, build_frame, decode_frame,
-                                 describe_error_bits, encode, encode_enable, encode_motion)
+from limo.protocol import (
+    FRAME_LEN,
+    ControlModeCommand,
+    FrameParser,
+    ImuAccel,
+    ImuEuler,
+    ImuGyro,
+    MotionCommand,
+    MotionState,
+    ProtocolError,
+    SystemState,
+    UnknownFrame,
+    WheelOdometry,
+    build_frame,
+    decode_frame,
+    describe_error_bits,
+    encode,
+    encode_enable,
+    encode_motion,
+)
 
 # the three frames of shared/docs/limo.md, checksums verified there
 GOLDEN_ENABLE = "55 0E 04 21 01 00 00 00 00 00 00 00 00 01"

@@ -13,24 +13,17 @@ import numpy as np
 import pytest
 import serial
 
-from robot.camera_source import CameraSource
-from robot.configfile import ConfigError, load_config
-from robot.hal import HalError, VelocityCommand, VelocityLimits
-from robot.hal_check import check_base
-from robot.limo_emulator import EmulatedSerialLimo, EmulatorConfig, EmulatorFaults, LimoEmulator
-from robot.limo_protocol import ID_ODOMETRY, ID_SYSTEM_STATE, SystemState, WheelOdometry, build_frame, encode
-from robot.limo_serial import LimoSerialBase, LimoSerialConfig, _monitor, describe_open_error
-from robot.state_estimate import StateEstimateConfig, StateEstimator
-
-
-
-def wait_until(predicate, timeout_s, step_s=0.005):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(step_s)
-    return predicate()
+from core.configfile import ConfigError, load_config
+from core.hal import HalError, VelocityCommand, VelocityLimits
+from core.hal_check import check_base
+from limo.camera import CameraSource
+from limo.emulated import EmulatedSerialLimo
+from limo.emulator.firmware import EmulatorConfig, EmulatorFaults, LimoEmulator
+from limo.monitor import main as monitor_main
+from limo.protocol import ID_ODOMETRY, ID_SYSTEM_STATE, SystemState, WheelOdometry, build_frame, encode
+from limo.serial_base import LimoSerialBase, LimoSerialConfig, describe_open_error
+from limo.state_estimate import StateEstimateConfig, StateEstimator
+from tests.waiting import wait_until
 
 
 @pytest.fixture
@@ -300,7 +293,7 @@ def test_camera_frames_arrive_in_the_sensor_frame(emulator, tmp_path):
 
 
 def test_a_camera_without_frames_fails_connect_naming_it(emulator, tmp_path):
-    from robot.camera_source import CameraError
+    from limo.camera import CameraError
 
     video = tmp_path / "empty.avi"
     cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 30, (64, 48)).release()   # no frame
@@ -362,9 +355,9 @@ def test_estimate_dead_reckons_position_and_ignores_counter_jumps():
 
 
 def test_monitor_cli_prints_feedback_and_names_a_missing_port(emulator, capsys):
-    assert _monitor(["--port", emulator.device_path, "--seconds", "0.25", "--every", "0.1"]) == 0
+    assert monitor_main(["--port", emulator.device_path, "--seconds", "0.25", "--every", "0.1"]) == 0
     out = capsys.readouterr().out
     assert "battery 12.2 V" in out and "wheels L +0.000" in out and "FAULT" not in out
     assert emulator.enabled and emulator.stats.motion_commands > 3 and emulator.commanded.is_zero
-    assert _monitor(["--port", "/dev/ttyNOSUCHLIMO", "--seconds", "0.1"]) == 1
+    assert monitor_main(["--port", "/dev/ttyNOSUCHLIMO", "--seconds", "0.1"]) == 1
     assert "does not exist" in capsys.readouterr().err

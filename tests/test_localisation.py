@@ -7,8 +7,16 @@ import pytest
 
 from controllers.actions import Action
 from controllers.config import LocaliserConfig, NavigationConfig
-from controllers.localisation import (GoalNotLocalisedError, InitialLocaliser, LocalisationError,
-                                      LocaliserStatus, TurnMeter, localise, localise_goal_image)
+from controllers.localisation import (
+    GoalNotLocalisedError,
+    InitialLocaliser,
+    LocalisationError,
+    LocaliserStatus,
+    TurnMeter,
+    localise,
+    localise_goal_image,
+)
+from core.angles import wrap_angle
 from tests.synthetic_places import SyntheticPlaces, chain, drive, offset
 
 T = 0.66
@@ -43,7 +51,7 @@ def test_bad_rows_are_rejected(row, match):
 
 def test_turn_meter_accumulates_across_the_wrap_and_counts_clockwise_negative():
     meter = TurnMeter()
-    headings = [math.atan2(math.sin(0.3 * k), math.cos(0.3 * k)) for k in range(30)]  # wrapped
+    headings = [wrap_angle(0.3 * k) for k in range(30)]
     for h in headings:
         meter.update(h)
         meter.update(None)          # a tick without heading changes nothing

@@ -12,22 +12,23 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from maps.builder import MapBuilder, MapBuildError, build_map
-from maps.config import MappingConfig, Thresholds
-from maps.graph import MapError, TopoMap
+from core.hal import Pose2D
+from maps.builder import MapBuilder
+from maps.config import MappingConfig, MapThresholds
+from maps.graph import MapBuildError, MapError, TopoMap
 from maps.optimise import merge_near_duplicates
-from robot.hal import Pose2D
+from maps.pipeline import build_map
 from tests.map_synthetic import arc_sequence, place_route
 
 
-def thresholds(**kw) -> Thresholds:
+def thresholds(**kw) -> MapThresholds:
     base = dict(T_add_new_node=0.85, T_interval=1, T_add_distance=0.9999, T_loop_closure=0.9,
                 T_merge=0.9, loop_min_gap_frames=30, loop_exclude_recent_nodes=2)
     base.update(kw)
-    return Thresholds(**base)
+    return MapThresholds(**base)
 
 
-def run(x: np.ndarray, t: Thresholds, **kw):
+def run(x: np.ndarray, t: MapThresholds, **kw):
     b = MapBuilder(t)
     b.add_frames(x, **kw)
     return b.finish()
@@ -297,7 +298,7 @@ TWINS = {12: (3, 0.97), 13: (4, 0.97)}
 LEG = 8        # frames per leg of place_route
 
 
-def _twin_thresholds(k: int) -> Thresholds:
+def _twin_thresholds(k: int) -> MapThresholds:
     return thresholds(T_add_new_node=0.8, T_loop_closure=0.9, T_merge=0.9, T_add_distance=0.999,
                       loop_min_gap_frames=20, T_loop_verify=0.8, loop_verify_frames=k, loop_verify_hops=2)
 
@@ -362,7 +363,7 @@ def test_verified_decisions_wait_for_their_frames_and_finish_decides_the_last_on
 def test_thresholds_without_verification_fields_load_as_unverified():
     old = {k: v for k, v in thresholds().to_dict().items()
            if k not in ("T_loop_verify", "loop_verify_frames", "loop_verify_hops")}
-    t = Thresholds.from_dict(old)
+    t = MapThresholds.from_dict(old)
     assert t.loop_verify_frames == 0
     with pytest.raises(ValueError, match="loop_verify_frames"):
         thresholds(loop_verify_frames=-1)

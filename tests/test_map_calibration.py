@@ -8,10 +8,10 @@ import networkx as nx
 import numpy as np
 import pytest
 
-from maps.builder import build_map
+from core.configfile import ConfigError, load_config
 from maps.calibration import CalibrationError, calibrate, lag_similarities, similarity_sample
 from maps.config import MappingConfig
-from robot.configfile import ConfigError, load_config
+from maps.pipeline import build_map
 from tests.map_synthetic import landmark_route
 
 

@@ -6,13 +6,14 @@ import cv2
 import numpy as np
 import pytest
 
-from maps.builder import MapBuilder, build_map
+from descriptors.base import DescriptorIdentity
+from maps.builder import MapBuilder
 from maps.calibration import similarity_sample
-from maps.config import MappingConfig, Thresholds
+from maps.config import MappingConfig, MapThresholds
 from maps.graph import MapError
 from maps.pictures import BACKGROUND_FADE, draw_map_picture, draw_similarity_picture
+from maps.pipeline import build_map
 from maps.store import load_map, save_map
-from robot.descriptors.base import DescriptorIdentity
 from tests.map_synthetic import landmark_route, place_route
 
 LOOP_RGB = (214, 39, 40)        # the loop-closure red
@@ -123,7 +124,7 @@ def test_map_picture_draws_the_world_large_and_keeps_thumbnails_off_it(tmp_path,
 
 def test_rejected_look_alikes_are_drawn_in_purple(tmp_path):
     x = place_route(list(range(17)) + [0, 1, 2, 3, 4, 5], frames_per_leg=8, twins={12: (3, 0.97), 13: (4, 0.97)})
-    t = Thresholds(T_add_new_node=0.8, T_interval=1, T_add_distance=0.999, T_loop_closure=0.9, T_merge=0.9,
+    t = MapThresholds(T_add_new_node=0.8, T_interval=1, T_add_distance=0.999, T_loop_closure=0.9, T_merge=0.9,
                    loop_min_gap_frames=20, loop_exclude_recent_nodes=2, T_loop_verify=0.8,
                    loop_verify_frames=16, loop_verify_hops=2)
     b = MapBuilder(t)

@@ -12,13 +12,15 @@ import cv2
 import numpy as np
 import pytest
 
+import core.atomic as atomic
 import maps.store as store
-from maps.builder import build_map
+from descriptors.base import DescriptorIdentity
 from maps.calibration import calibrate, similarity_sample
 from maps.config import MappingConfig
 from maps.graph import MapError
-from maps.store import encode_thumbnail, load_map, make_thumbnail, map_size, save_map
-from robot.descriptors.base import DescriptorIdentity
+from maps.pipeline import build_map
+from maps.store import load_map, map_size, save_map
+from maps.thumbnails import encode_thumbnail, make_thumbnail
 from tests.map_synthetic import landmark_route
 
 IDENTITY = DescriptorIdentity(backend="test-projection", settings={"layer": 10, "clusters": 4},
@@ -273,7 +275,7 @@ def _crash_child(path: Path, new_made, crash_at: int, steps_file: Path, no_excha
 
     store._checkpoint = checkpoint
     if no_exchange:
-        store._exchange = lambda a, b: False
+        atomic.exchange_paths = lambda a, b: False
     try:
         save(path, new_made)
     except BaseException:
@@ -288,7 +290,7 @@ def _save_steps(tmp_path: Path, made_route, no_exchange: bool, monkeypatch) -> l
     with monkeypatch.context() as m:
         m.setattr(store, "_checkpoint", steps.append)
         if no_exchange:
-            m.setattr(store, "_exchange", lambda a, b: False)
+            m.setattr(atomic, "exchange_paths", lambda a, b: False)
         save(path, made_route)
     return steps
 
@@ -340,7 +342,7 @@ def test_an_exception_during_save_leaves_one_complete_map(tmp_path, made, monkey
 
     monkeypatch.setattr(store, "_checkpoint", fail)
     if no_exchange:
-        monkeypatch.setattr(store, "_exchange", lambda a, b: False)
+        monkeypatch.setattr(atomic, "exchange_paths", lambda a, b: False)
     with pytest.raises(OSError, match="No space left"):
         save(path, new_made)
     assert not list(tmp_path.glob(".m.*")), "no temporary or previous folder is left behind"

@@ -2,6 +2,7 @@
 
 import json
 import math
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -10,8 +11,7 @@ import cv2
 import pytest
 
 from maps.store import load_map
-
-from robot.recording import read_recording
+from robot.mapping.recording import read_recording
 
 TINY = Path(__file__).parent / "data" / "tiny_world.yaml"
 
@@ -21,17 +21,17 @@ def _run(*args, cwd=None):
                           cwd=cwd, timeout=300)
 
 
+pytestmark = pytest.mark.slow      # drives PyBullet over a world and starts the CLI
+
+
 @pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
-    """One mapping run of the tiny world through the CLI (drive, record, map), shared by the tests."""
-    out = tmp_path_factory.mktemp("run") / "tiny"
-    proc = _run("--mode", "map", "--world", str(TINY), "--out", str(out), "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    return out, proc
+def tiny_run(tiny_mapping_run):
+    """The session's mapping run of the tiny world (conftest) and what the CLI printed."""
+    return tiny_mapping_run, (tiny_mapping_run / "stdout.txt").read_text()
 
 
 def test_mapping_run_records_frames_summary_and_picture(tiny_run):
-    out, proc = tiny_run
+    out, stdout = tiny_run
     summary = json.loads((out / "summary.json").read_text())
     assert summary["world"] == "tiny"
     # the loop is 12 m; the teleoperator drives all of it and stops near the start
@@ -43,11 +43,11 @@ def test_mapping_run_records_frames_summary_and_picture(tiny_run):
     assert frames[5].load_rgb().shape == (240, 320, 3)
     picture = cv2.imread(str(out / "world.png"))
     assert picture is not None and picture.shape[0] > 100
-    assert "recorded" in proc.stdout
+    assert "recorded" in stdout
 
 
 def test_mapping_run_builds_a_map_along_the_drive(tiny_run):
-    out, proc = tiny_run
+    out, stdout = tiny_run
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames_read"] == summary["frames"]
     loaded = load_map(out / "map")
@@ -68,15 +68,16 @@ def test_mapping_run_builds_a_map_along_the_drive(tiny_run):
         assert abs(math.remainder(turned_odom - turned_true, math.tau)) < 0.15
     assert cv2.imread(str(out / "map" / "map.png")) is not None
     assert cv2.imread(str(out / "map" / "similarity.png")) is not None
-    assert "nodes" in proc.stdout and "loop closures" in proc.stdout
+    assert "nodes" in stdout and "loop closures" in stdout
 
 
 def test_show_mode_redraws_the_pictures(tiny_run, tmp_path):
     out, _ = tiny_run
-    (out / "map" / "map.png").unlink()
-    proc = _run("--mode", "show", "--map", str(out / "map"))
+    copy = shutil.copytree(out / "map", tmp_path / "map")        # the session's map stays untouched
+    (copy / "map.png").unlink()
+    proc = _run("--mode", "show", "--map", str(copy))
     assert proc.returncode == 0, proc.stderr
-    assert cv2.imread(str(out / "map" / "map.png")) is not None
+    assert cv2.imread(str(copy / "map.png")) is not None
 
 
 def test_map_from_a_video_without_a_robot(tiny_run, tmp_path):
@@ -140,7 +141,12 @@ def test_ctrl_c_stops_cleanly_and_leaves_no_partial_recording(tmp_path):
     out = tmp_path / "tiny"
     proc = subprocess.Popen([sys.executable, "-m", "robot.run", "--mode", "map", "--world", str(TINY),
                              "--out", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)
+    # interrupt the drive itself: once frames are being recorded (a fixed sleep would hit the
+    # interpreter's start-up on a busy machine)
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob(".tiny.saving-*/frames/000005.jpg")) and time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err

@@ -5,17 +5,27 @@ import dataclasses
 import pytest
 
 from controllers.actions import Action, action_velocity
-from controllers.config import (ActionSpeeds, LocaliserConfig, NavigationConfig, SimilarityFilterConfig,
-                                SupervisorConfig, Thresholds)
-from robot.configfile import ConfigError, from_mapping, load_config, to_mapping
-from robot.hal import VelocityCommand
+from controllers.config import (
+    ActionSpeeds,
+    LocaliserConfig,
+    NavigationConfig,
+    SimilarityFilterConfig,
+    SupervisorConfig,
+    ThresholdFractions,
+    Thresholds,
+)
+from core.configfile import ConfigError, from_mapping, load_config, to_mapping
+from core.hal import VelocityCommand
 
 
-def test_defaults_are_valid_and_match_the_documented_map_statistics():
-    config = NavigationConfig()
-    derived = Thresholds.from_map(0.45, 0.80)
-    for name in ("t_milestone", "t_change_node", "t_lost"):
-        assert getattr(config.thresholds, name) == pytest.approx(getattr(derived, name), abs=0.01)
+def test_map_thresholds_use_the_configured_fractions():
+    """The fractions live in one place (ThresholdFractions, navigation.threshold_fractions)."""
+    th = Thresholds.from_map(0.45, 0.85)                          # band 0.4
+    assert th.t_milestone == pytest.approx(0.45 + ThresholdFractions().milestone * 0.4)
+    assert th.t_change_node == pytest.approx(0.45 + ThresholdFractions().change_node * 0.4)
+    assert th.t_lost == pytest.approx(0.45 - ThresholdFractions().lost * 0.4)
+    other = Thresholds.from_map(0.45, 0.85, ThresholdFractions(milestone=0.5, change_node=0.3, lost=0.2))
+    assert (other.t_milestone, other.t_change_node, other.t_lost) == pytest.approx((0.65, 0.57, 0.37))
 
 
 @pytest.mark.parametrize("t_add,self_sim", [(0.3, 1.0), (0.45, 0.8), (0.6, 0.75), (0.1, 0.4)])
@@ -25,14 +35,13 @@ def test_map_thresholds_are_ordered_inside_the_band(t_add, self_sim):
 
 
 def test_map_thresholds_for_the_thirds():
-    assert Thresholds.from_map(0.4, 0.9, thirds_self_similarity=0.7).t_limited_control == pytest.approx(0.42)
+    assert Thresholds.from_map(0.4, 0.9).t_limited_control == ThresholdFractions().control_contrast
+    assert Thresholds.from_map(0.4, 0.9, ThresholdFractions(control_contrast=0.7)).t_limited_control == 0.7
     assert Thresholds.from_map(0.4, 0.9, t_limited_control=0.3).t_limited_control == 0.3
-    assert Thresholds.from_map(0.4, 0.9).t_limited_control == Thresholds().t_limited_control
 
 
 @pytest.mark.parametrize("kwargs,match", [
     (dict(t_add_new_node=0.8, self_similarity=0.7), "self_similarity"),
-    (dict(t_add_new_node=0.4, self_similarity=0.9, milestone_fraction=1.2), "milestone_fraction"),
     (dict(t_add_new_node=1.4), "t_add_new_node"),
 ])
 def test_map_thresholds_reject_bad_statistics(kwargs, match):
@@ -56,6 +65,8 @@ def test_map_thresholds_reject_bad_statistics(kwargs, match):
     (ActionSpeeds, dict(forward_right=VelocityCommand(-0.1, -0.3)), "forward_right.v_mps"),
     (ActionSpeeds, dict(search_rotate=VelocityCommand(0.0, -0.5)), "search_rotate.w_radps"),
     (NavigationConfig, dict(max_relocalisations=-1), "max_relocalisations"),
+    (ThresholdFractions, dict(milestone=1.2), "milestone"),
+    (ThresholdFractions, dict(milestone=0.1, change_node=0.2), "change_node"),
 ])
 def test_bad_fields_are_named(cls, kwargs, match):
     with pytest.raises(ValueError, match=match):

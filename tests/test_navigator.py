@@ -12,7 +12,8 @@ from controllers.config import NavigationConfig, SupervisorConfig
 from controllers.localisation import GoalNotLocalisedError
 from controllers.navigator import NavigationInputError, NavigationStep, Navigator, NavState
 from controllers.planner import UnknownNodeError
-from robot.hal import Pose2D
+from core.angles import wrap_angle
+from core.hal import Pose2D
 from tests.synthetic_places import SyntheticPlaces, chain, drive, offset, square_loop
 
 DT_S = 0.2
@@ -333,7 +334,7 @@ def _expert_policy(places: SyntheticPlaces, pose_of, poses):
         pose = pose_of()
         target = poses[node]
         bearing = math.atan2(target.y_m - pose.y_m, target.x_m - pose.x_m) - pose.yaw_rad
-        bearing = math.atan2(math.sin(bearing), math.cos(bearing))
+        bearing = wrap_angle(bearing)
         if bearing > 0.3:
             return Action.LEFT
         if bearing < -0.3:

@@ -5,8 +5,8 @@ import json
 import numpy as np
 import pytest
 
-from robot.hal import Odometry, Pose2D, SensorFrame
-from robot.recording import RecordingError, RecordingWriter, read_recording
+from core.hal import Odometry, Pose2D, SensorFrame
+from robot.mapping.recording import RecordingError, RecordingWriter, read_recording
 
 
 def _frame(i):

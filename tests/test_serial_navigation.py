@@ -11,11 +11,12 @@ import subprocess
 import sys
 import threading
 import time
-from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+
+pytestmark = pytest.mark.slow      # the CLI over an emulated serial base, in real time
 
 TINY_CONFIG = "descriptor:\n  backend: tiny\n"
 
@@ -51,7 +52,7 @@ def serial_setup(tmp_path_factory):
 
 def _start_emulator():
     """The emulator process, its pty path and a queue of its status lines (stderr, every 0.1 s)."""
-    emu = subprocess.Popen([sys.executable, "-m", "robot.limo_emulator", "--status-every", "0.1"],
+    emu = subprocess.Popen([sys.executable, "-m", "limo.emulator", "--status-every", "0.1"],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     port = emu.stdout.readline().strip()
     assert port.startswith("/dev/"), port

@@ -9,16 +9,18 @@ import numpy as np
 import pybullet as p
 import pytest
 
-from robot.hal import HalError, Pose2D, RobotBase, VelocityCommand
-from robot.hal_check import check_base
-from robot.limo_serial import LimoSerialConfig
-from sim.hal import SimConfig, SimLimo
-from robot.camera_source import CameraError
-from robot.limo_emulator import EmulatorConfig, EmulatorError
-from sim.camera import CameraSpec
-from sim.serial_twin import (PyBulletBaseModel, SerialTwinConfig, SerialTwinError, SerialTwinLimo,
-                             SimCameraSource)
-from sim.world_spec import load_world
+from core.angles import wrap_angle
+from core.hal import HalError, Pose2D, RobotBase, VelocityCommand
+from core.hal_check import check_base
+from limo.camera import CameraError
+from limo.emulator.firmware import EmulatorConfig, EmulatorError
+from limo.serial_base import LimoSerialConfig
+from sim.config import CameraSpec, SimConfig
+from sim.hal import SimLimo
+from sim.serial_twin import PyBulletBaseModel, SerialTwinConfig, SerialTwinError, SerialTwinLimo, SimCameraSource
+from sim.worlds import load_world
+
+pytestmark = pytest.mark.slow      # the PyBullet Limo behind a serial link, in real time
 
 # a start off the origin and heading, so frame mix-ups (world vs start frame) show
 START = Pose2D(1.0, -2.0, 0.6)
@@ -57,7 +59,7 @@ def settle(base: RobotBase, seconds: float = 0.4) -> None:
 def in_start_frame(pose: Pose2D, start: Pose2D) -> tuple[float, float, float]:
     c, s = math.cos(start.yaw_rad), math.sin(start.yaw_rad)
     dx, dy = pose.x_m - start.x_m, pose.y_m - start.y_m
-    dyaw = (pose.yaw_rad - start.yaw_rad + math.pi) % (2 * math.pi) - math.pi
+    dyaw = wrap_angle(pose.yaw_rad - start.yaw_rad)
     return c * dx + s * dy, -s * dx + c * dy, dyaw
 
 

@@ -4,9 +4,16 @@ import math
 
 import pytest
 
-from sim.shortest_path import (LIMO_CLEARANCE_M, NoPathError, free_space, route_shortest_length_m,
-                               shortest_path, shortest_path_length_m)
-from sim.world_spec import clearance_m, load_world
+from sim.geometry import clearance_m
+from sim.shortest_path import (
+    LIMO_CLEARANCE_M,
+    NoPathError,
+    free_space,
+    route_shortest_length_m,
+    shortest_path,
+    shortest_path_length_m,
+)
+from sim.worlds import load_world
 
 ROOM = """
 name: room
@@ -79,6 +86,7 @@ def test_blocked_or_unreachable_points_are_named(room):
         shortest_path_length_m(room, (2.0, 4.0), (6.0, 4.0), grid=(cut, origin))
 
 
+@pytest.mark.slow     # the shortest paths over the hospital and office
 def test_shipped_routes_have_shortest_lengths_below_their_taught_lengths():
     for world in ("hospital", "office"):
         spec = load_world(world)

@@ -3,9 +3,11 @@
 import math
 
 import numpy as np
+import pytest
 
-from robot.hal import Pose2D, VelocityCommand
-from sim.hal import SimConfig, SimLimo
+from core.hal import Pose2D, VelocityCommand
+from sim.config import SimConfig
+from sim.hal import SimLimo
 
 COMMANDS = [VelocityCommand(0.4, 0.0)] * 5 + [VelocityCommand(0.3, 0.8)] * 8 + [VelocityCommand(0.0, -1.0)] * 6
 
@@ -62,9 +64,10 @@ def test_reading_less_often_does_not_change_the_sensors():
     assert last.odometry == odom_every_tick[-1]
 
 
+@pytest.mark.slow     # builds the hospital in PyBullet
 def test_same_seed_same_run_in_a_world():
     """Through the build_world hook: identical first images and poses; the floor is no obstacle."""
-    from sim.world_spec import load_world
+    from sim.worlds import load_world
 
     world = load_world("hospital")
     (x0, y0), (x1, y1) = world.routes.walkthrough[:2]

@@ -1,6 +1,6 @@
 """`python -m robot.run --mode navigate` end to end in the simulator, through the real CLI.
 
-One mapping run of the tiny test world (module fixture), then closed-loop episodes with the
+One mapping run of the tiny test world (the session's, conftest), then closed-loop episodes with the
 default descriptor: the route `short` under another appearance seed than the map's, a kidnapped
 start at a far node of the map, and bad inputs that must stop before the robot moves.
 """
@@ -15,7 +15,7 @@ import networkx as nx
 import pytest
 
 from maps.store import load_map
-from sim.world_spec import load_world
+from sim.worlds import load_world
 
 TINY = Path(__file__).parent / "data" / "tiny_world.yaml"
 # one torch thread: the machine is shared, and describe is then ~65 ms instead of >1 s
@@ -29,13 +29,13 @@ def _run(*args, timeout=300):
                           timeout=timeout, env=env)
 
 
+pytestmark = pytest.mark.slow      # closed-loop episodes in PyBullet through the CLI
+
+
 @pytest.fixture(scope="module")
-def tiny_map(tmp_path_factory):
-    """The tiny world mapped once through the CLI (drive, record, map)."""
-    out = tmp_path_factory.mktemp("nav") / "tiny"
-    proc = _run("--mode", "map", "--world", str(TINY), "--out", str(out), "--quiet")
-    assert proc.returncode == 0, proc.stderr
-    return out / "map"
+def tiny_map(tiny_mapping_run):
+    """The session's map of the tiny world (conftest: drive, record, map through the CLI)."""
+    return tiny_mapping_run / "map"
 
 
 def _navigate(map_dir, tmp_path, *extra):

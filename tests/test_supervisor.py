@@ -5,7 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from controllers.config import NavigationConfig, SimilarityFilterConfig, SupervisorConfig, Thresholds
+from controllers.config import (
+    NavigationConfig,
+    SimilarityFilterConfig,
+    SupervisorConfig,
+    ThresholdFractions,
+    Thresholds,
+)
 from controllers.localisation import InitialLocaliser, LocaliserStatus
 from controllers.planner import GlobalPlanner
 from controllers.similarity_filter import SimilarityFilter
@@ -198,7 +204,7 @@ def test_one_node_path_is_the_goal_and_bad_paths_are_rejected():
 
 
 def test_thresholds_from_the_map_drive_the_same_logic():
-    th = Thresholds.from_map(t_add_new_node=0.30, self_similarity=0.70)
+    th = Thresholds.from_map(0.30, 0.70, ThresholdFractions(milestone=0.6, change_node=0.45, lost=0.15))
     config = NavigationConfig(thresholds=th)
     sup = NodeSwitchSupervisor([0, 1], range(2), config)
     # 0.58 would never confirm under the default t_milestone (0.66); here it is above 0.54

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from robot.hal import Pose2D
+from core.hal import Pose2D
 from sim.teleop import TeleopConfig, WaypointTeleop
 
 SQUARE = [(0, 0), (4, 0), (4, 3), (0, 3), (0, 0)]

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from sim import topdown
-from sim.topdown import ROUTE_COLORS, WALL_COLOR, WALKTHROUGH_COLOR, render_topdown
-from sim.world_spec import load_world
+from sim.topdown import ROUTE_COLORS, WALKTHROUGH_COLOR, WALL_COLOR, render_topdown
+from sim.worlds import load_world
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,11 @@ import numpy as np
 import pybullet as p
 import pytest
 
+from sim.geometry import prop_footprints, wall_footprint
 from sim.textures import KINDS, TextureSpec, make_texture, texture_png
 from sim.world import build_world
-from sim.world_spec import (DecalSpec, FloorSpec, RoutesSpec, WallSpec, WorldSpec, load_world, prop_footprints,
-                            wall_footprint)
+from sim.world_spec import DecalSpec, FloorSpec, RoutesSpec, WallSpec, WorldSpec
+from sim.worlds import load_world
 
 
 @pytest.fixture

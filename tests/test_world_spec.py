@@ -7,11 +7,15 @@ import numpy as np
 import pytest
 import yaml
 
-from robot.configfile import ConfigError
-from robot.hal import Pose2D
+from core.angles import angle_between
+from core.configfile import ConfigError
+from core.hal import Pose2D
+from sim.appearance import MAX_PROP_SHIFT_M, apply_appearance
+from sim.geometry import clearance_m, polyline_length_m, sample_polyline
+from sim.route_along import follow_walkthrough
 from sim.teleop import WaypointTeleop
-from sim.world_spec import (MAX_PROP_SHIFT_M, WorldError, apply_appearance, available_worlds, clearance_m,
-                            follow_walkthrough, load_world, polyline_length_m, sample_polyline)
+from sim.world_spec import WorldError
+from sim.worlds import available_worlds, load_world
 
 # A 6 x 4 m room with a rectangular loop and one route: the smallest valid world.
 MINIMAL = {
@@ -190,7 +194,7 @@ def test_walkthrough_is_a_loop_through_every_route_start_and_goal(world):
         found = follow_walkthrough(walk, route.path, math.radians(route.start[2]))
         assert found is not None, name
         for yaw_deg, heading in ((route.start[2], found.heading_start_rad), (route.goal[2], found.heading_goal_rad)):
-            diff = abs((math.radians(yaw_deg) - heading + math.pi) % (2 * math.pi) - math.pi)
+            diff = angle_between(math.radians(yaw_deg), heading)
             assert diff < math.radians(10), f"{name}: pose yaw {yaw_deg} vs walkthrough {math.degrees(heading):.0f}"
 
 

@@ -16,7 +16,7 @@ Usage::
 
     path = train_baseline("hospital", "runs/hospital/map", "runs/baseline.pt", episodes=40, seed=0)
     policy = SptmPolicy(load_baseline(path), load_map("runs/office/map"))
-    run_sim_navigation("office", ..., action_policy=policy)
+    run_sim_navigation(SimEpisode("office", "runs/office/map", route="main"), descriptor, action_policy=policy)
 """
 
 from robot.baseline.head import BaselineFileError, TrainedHead

@@ -18,8 +18,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.actions import Action
+from core.angles import wrap_angle
+from core.hal import Pose2D
+from core.validate import check_at_least, check_count, check_range
 from maps.graph import TopoMap
-from robot.hal import Pose2D, wrap_angle
 from robot.baseline.track import TrackError, WalkthroughTrack
 
 #: the classifier's classes, in the order of its outputs
@@ -43,12 +45,10 @@ class ExpertConfig:
     def __post_init__(self) -> None:
         if not 0.0 <= self.target_min_m < self.target_max_m:
             raise ExpertError(f"need 0 <= target_min_m < target_max_m, got {self.target_min_m}, {self.target_max_m}")
-        if not 0.0 < self.forward_tolerance_deg < 90.0:
-            raise ExpertError(f"forward_tolerance_deg must be within (0, 90), got {self.forward_tolerance_deg}")
-        if self.near_m < 0.0:
-            raise ExpertError(f"near_m must be >= 0, got {self.near_m}")
-        if isinstance(self.max_targets, bool) or not isinstance(self.max_targets, int) or self.max_targets < 1:
-            raise ExpertError(f"max_targets must be an integer >= 1, got {self.max_targets!r}")
+        check_range("forward_tolerance_deg", self.forward_tolerance_deg, 0.0, 90.0, low_open=True, high_open=True,
+                    what="a number of degrees", error=ExpertError)
+        check_at_least("near_m", self.near_m, 0.0, error=ExpertError)
+        check_count("max_targets", self.max_targets, 1, error=ExpertError)
 
 
 def heading_error_rad(pose: Pose2D, target: Pose2D, near_m: float = ExpertConfig.near_m) -> float:

@@ -27,13 +27,18 @@ from tqdm import tqdm
 
 from controllers.actions import Action, action_velocity
 from controllers.config import ActionSpeeds
+from core.angles import wrap_angle
+from core.hal import Pose2D
+from core.validate import check_at_least, check_count, check_range
 from maps.store import LoadedMap
 from robot.baseline.expert import CLASSES, ExpertConfig, ExpertError, NodeTargets, expert_action
 from robot.baseline.features import FeatureSettings, ImageFeatures, as_thumbnail
 from robot.baseline.track import WalkthroughTrack
-from robot.hal import Pose2D, wrap_angle
-from sim.hal import SimConfig, SimLimo
-from sim.world_spec import WorldSpec, apply_appearance, clearance_m
+from sim.appearance import apply_appearance
+from sim.config import SimConfig
+from sim.geometry import clearance_m
+from sim.hal import SimLimo
+from sim.world_spec import WorldSpec
 
 #: appearance seeds of the exploration drives start here (map drives use 0, evaluation trials small numbers)
 APPEARANCE_BASE = 1000
@@ -61,18 +66,13 @@ class ExplorationConfig:
 
     def __post_init__(self) -> None:
         for name in ("episodes", "steps_per_episode", "random_hold_min", "random_hold_max", "appearances"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ExplorationError(f"exploration {name} must be an integer >= 1, got {value!r}")
+            check_count(f"exploration {name}", getattr(self, name), 1, error=ExplorationError)
         if self.random_hold_max < self.random_hold_min:
             raise ExplorationError(f"exploration random_hold_max ({self.random_hold_max}) < random_hold_min "
                                    f"({self.random_hold_min})")
-        if not 0.0 <= self.epsilon <= 1.0:
-            raise ExplorationError(f"exploration epsilon must be within [0, 1], got {self.epsilon}")
+        check_range("exploration epsilon", self.epsilon, 0.0, 1.0, error=ExplorationError)
         for name in ("start_offset_m", "start_yaw_deg", "min_clearance_m", "max_off_track_m"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ExplorationError(f"exploration {name} must be a finite number >= 0, got {value!r}")
+            check_at_least(f"exploration {name}", getattr(self, name), 0.0, error=ExplorationError)
 
 
 @dataclass(frozen=True)

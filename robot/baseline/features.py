@@ -31,10 +31,10 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from maps.store import THUMB_SIZE, encode_thumbnail
-from robot.descriptors.efficientnet_lite import (BLOCKS, INPUT_MEAN, INPUT_STD, block_channels,
-                                                 load_efficientnet_lite0, packaged_weights_path)
-from robot.descriptors.preprocess import to_rgb_uint8
+from descriptors.efficientnet_lite import load_efficientnet_lite0
+from descriptors.efficientnet_lite_spec import BLOCKS, INPUT_MEAN, INPUT_STD, block_channels, packaged_weights_path
+from descriptors.preprocess import to_rgb_uint8
+from maps.thumbnails import THUMB_SIZE, encode_thumbnail
 
 
 class FeatureError(ValueError):

@@ -21,7 +21,6 @@ overall accuracy, the accuracy per class (recall), and the majority-class rate t
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import asdict, dataclass
 from typing import Mapping, Optional, Sequence
@@ -31,6 +30,7 @@ import torch
 from torch import nn
 
 from controllers.actions import Action
+from core.validate import check_at_least, check_bool, check_count, check_range
 from robot.baseline.expert import CLASSES
 from robot.baseline.exploration import ExpertData
 from robot.baseline.features import mirror_features
@@ -57,21 +57,15 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         for name in ("hidden", "epochs", "batch_size"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise TrainingError(f"training {name} must be an integer >= 1, got {value!r}")
+            check_count(f"training {name}", getattr(self, name), 1, error=TrainingError)
         if isinstance(self.validation_every, bool) or not isinstance(self.validation_every, int) \
                 or self.validation_every < 0 or self.validation_every == 1:
             raise TrainingError(f"training validation_every must be 0 (none) or an integer >= 2, "
                                 f"got {self.validation_every!r}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise TrainingError(f"training dropout must be within [0, 1), got {self.dropout}")
-        if not isinstance(self.mirror, bool):
-            raise TrainingError(f"training mirror must be true or false, got {self.mirror!r}")
+        check_range("training dropout", self.dropout, 0.0, 1.0, high_open=True, error=TrainingError)
+        check_bool("training mirror", self.mirror, error=TrainingError)
         for name in ("learning_rate", "weight_decay", "class_weight_power"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise TrainingError(f"training {name} must be a finite number >= 0, got {value!r}")
+            check_at_least(f"training {name}", getattr(self, name), 0.0, error=TrainingError)
 
 
 def sample_features(data: ExpertData, node_ids: Sequence[int], node_feats: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

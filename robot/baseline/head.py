@@ -20,8 +20,7 @@ Every problem raises :class:`BaselineFileError` naming the file.
 
 from __future__ import annotations
 
-import os
-import secrets
+import io
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Optional, Union
@@ -31,6 +30,7 @@ import torch
 from torch import nn
 
 from controllers.actions import Action
+from core.atomic import write_bytes
 from robot.baseline.expert import CLASSES
 from robot.baseline.features import FeatureError, FeatureSettings
 
@@ -98,22 +98,9 @@ class TrainedHead:
 
 
 def _atomic_write(path: Path, payload: dict) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}")
-    try:
-        with open(tmp, "wb") as fh:
-            torch.save(payload, fh)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    fd = os.open(path.parent, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    write_bytes(path, buf.getvalue())
 
 
 def save_head(path: Union[str, Path], head: TrainedHead) -> Path:

@@ -17,8 +17,9 @@ from robot.baseline.exploration import ExplorationConfig, collect_expert_data
 from robot.baseline.features import FeatureSettings, ImageFeatures, node_features
 from robot.baseline.fit import TrainConfig, train_head
 from robot.baseline.head import TrainedHead, load_head, save_head
-from sim.hal import SimConfig
-from sim.world_spec import WorldSpec, load_world
+from sim.config import SimConfig
+from sim.world_spec import WorldSpec
+from sim.worlds import load_world
 
 
 class BaselineInputError(ValueError):

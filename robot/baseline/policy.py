@@ -1,6 +1,6 @@
 """The SPTM-style learned action policy: the navigator's voter replaced by a classifier.
 
-Plugs into :func:`robot.navigation.run_episode` (and ``robot.sim_episode.run_sim_navigation``)
+Plugs into :func:`robot.episode.loop.run_episode` (and ``robot.episode.sim.run_sim_navigation``)
 as ``action_policy``: localisation, planning and node switching stay the navigator's; each tick
 the classifier looks at the camera frame and the target node's thumbnail and says LEFT,
 FORWARD or RIGHT. Every node thumbnail is described once when the policy is built; a frame is
@@ -22,7 +22,7 @@ from robot.baseline.head import TrainedHead
 
 
 class SptmPolicy:
-    """``robot.navigation.ActionPolicy`` backed by a :class:`robot.baseline.head.TrainedHead`.
+    """``robot.episode.loop.ActionPolicy`` backed by a :class:`robot.baseline.head.TrainedHead`.
 
     ``features``: the feature extractor (default: one built from the head's feature settings;
     pass one to share its loaded network). Works with any map, of any world: the head sees only

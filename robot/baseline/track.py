@@ -15,7 +15,8 @@ from typing import Sequence
 
 import numpy as np
 
-from sim.world_spec import WALKTHROUGH_CLOSE_M, sample_polyline
+from sim.geometry import sample_polyline
+from sim.route_along import WALKTHROUGH_CLOSE_M
 
 #: spacing of the polyline samples used for projection (metres)
 SAMPLE_STEP_M = 0.05

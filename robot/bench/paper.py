@@ -37,8 +37,18 @@ from typing import Optional
 
 from tqdm import tqdm
 
-from robot.bench.trials import (DEFAULT_METHODS, METHODS, Trial, config_digest, episode_path, plan_trials, run_trial,
-                                step_log_path, worker_init)
+from core.atomic import write_json
+from robot.bench.trials import (
+    DEFAULT_METHODS,
+    METHODS,
+    Trial,
+    config_digest,
+    episode_path,
+    plan_trials,
+    run_trial,
+    step_log_path,
+    worker_init,
+)
 
 DEFAULT_ROUTES = ("hospital:easy", "hospital:moderate", "hospital:hard", "office:main")
 DEFAULT_SPARSITY_LEVELS = (0.25, 0.5, 0.75)
@@ -127,12 +137,12 @@ def ensure_map(world_name: str, sparsity: float, config, out: Path, progress: bo
     """The map of ``world_name``'s walkthrough at ``sparsity`` under ``out/maps`` (built when
     missing unless ``build`` is false; the walkthrough is driven once per world and reused for
     every level)."""
+    from descriptors.factory import make_descriptor
     from maps.store import load_map
-    from robot.frame_sources import RecordingSource, Sampling
-    from robot.map_building import build_map_from_frames, world_picture_of
-    from robot.descriptors.factory import make_descriptor
-    from robot.walkthrough import drive_walkthrough
-    from sim.world_spec import load_world
+    from robot.mapping.drive import drive_walkthrough
+    from robot.mapping.make import build_map_from_frames, world_picture_of
+    from robot.mapping.sources import RecordingSource, Sampling
+    from sim.worlds import load_world
 
     spec = load_world(world_name)
     map_dir = out / "maps" / f"{spec.name}-s{sparsity:g}"
@@ -179,13 +189,6 @@ def ensure_baseline(path: Optional[Path], out: Path, hospital_map: Path, episode
 
 
 # -- running --------------------------------------------------------------------------------------
-def _write_json(path: Path, data) -> None:
-    from robot.map_building import write_json_atomic
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_json_atomic(path, data)
-
-
 def _reusable(out: Path, trial: Trial) -> Optional[dict]:
     path = episode_path(out, trial)
     if not path.is_file():
@@ -220,7 +223,7 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
 
     def finish(i: int, result: dict) -> None:
         results[i] = result
-        _write_json(episode_path(out, trials[i]), result)
+        write_json(episode_path(out, trials[i]), result)
         m = result["metrics"]
         bar.set_postfix_str(f"{trials[i].key}: {'ok' if m['success'] else 'FAIL'}", refresh=False)
         bar.update(1)
@@ -248,11 +251,12 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
 
 # -- main -----------------------------------------------------------------------------------------
 def main(args: argparse.Namespace) -> int:
+    from core.configfile import ConfigError
     from robot.bench.paper_report import write_report
-    from robot.configfile import ConfigError
     from robot.settings import load_stack_config
     from sim.shortest_path import route_shortest_length_m
-    from sim.world_spec import WorldError, load_world
+    from sim.world_spec import WorldError
+    from sim.worlds import load_world
 
     started = time.perf_counter()
     try:

@@ -8,11 +8,12 @@ numbers go to ``timings.json`` and the timing section of ``results.md``.
 from __future__ import annotations
 
 import json
-import os
 from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
+
+from core.atomic import save_figure, write_text
 
 #: The paper's success rates (Table "Comparison of Success Rates"), keyed by our routes.
 PAPER_COLUMNS = {("hospital", "easy"): "Easy 10 m", ("hospital", "moderate"): "Moderate 20 m",
@@ -28,14 +29,6 @@ METHOD_LABELS = {"ours": "Ours (AnyLoc-style VLAD + two-cycle voter)",
 PAPER_LABELS = {"ours": "Paper: Ours", "sptm": "Paper: ResNet+AnyLoc"}
 COLORS = {"ours": (0.12, 0.47, 0.71), "ours-hints": (0.17, 0.63, 0.17), "ours-no-hints": (0.58, 0.40, 0.74),
           "sptm": (0.85, 0.37, 0.01)}
-
-
-def _write(path: Path, text: str) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
-    return path
 
 
 def summarise_episodes(episodes: Sequence[dict]) -> dict:
@@ -134,17 +127,17 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
                         for w, d in maps.items()},
                "summary": summary, "sparsity_route": sparsity_route, "sparsity": sparsity,
                **({"partial": partial} if partial else {}), "episodes": deterministic}
-    files = [_write(out / "results.json", json.dumps(results, indent=2) + "\n")]
+    files = [write_text(out / "results.json", json.dumps(results, indent=2) + "\n")]
     timings = {e["trial"]["world"] + "/" + e["trial"]["route"] + "/" + e["trial"]["method"]
                + ("" if e["trial"]["sparsity"] is None else f"@{e['trial']['sparsity']:g}")
                + f"/{e['trial']['trial']}": e["timing"] for e in [*main, *study]}
-    files.append(_write(out / "timings.json", json.dumps(timings, indent=2) + "\n"))
+    files.append(write_text(out / "timings.json", json.dumps(timings, indent=2) + "\n"))
 
     table = _paper_table(routes, methods, summary)
     diagnoses = _diagnoses([*main, *study], out, specs)
     md = _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route,
                    results["maps"], [*main, *study], out, partial, diagnoses)
-    files.append(_write(out / "results.md", md))
+    files.append(write_text(out / "results.md", md))
     files += _plots(out, routes, methods, summary, main, specs, sparsity, diagnoses)
     return {"table": table, "files": files}
 
@@ -320,7 +313,7 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity, diagnoses
     ax.set_title("Success rate per route (black ticks: the paper's numbers)", fontsize=9)
     fig.tight_layout()
     files.append(out / "sr.png")
-    fig.savefig(files[-1], dpi=120)
+    save_figure(fig, files[-1], dpi=120)
     plt.close(fig)
 
     from sim.topdown import render_topdown
@@ -358,7 +351,7 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity, diagnoses
                          + ("; orange: wrong confirmations" if diagnoses else ""), fontsize=9)
         fig.tight_layout()
         files.append(out / f"trajectories_{w}_{r}.png")
-        fig.savefig(files[-1], dpi=110)
+        save_figure(fig, files[-1], dpi=110)
         plt.close(fig)
 
     if sparsity:
@@ -379,6 +372,6 @@ def _plots(out: Path, routes, methods, summary, main, specs, sparsity, diagnoses
         fig.legend(fontsize=7, loc="lower right")
         fig.tight_layout()
         files.append(out / "sparsity.png")
-        fig.savefig(files[-1], dpi=120)
+        save_figure(fig, files[-1], dpi=120)
         plt.close(fig)
     return files

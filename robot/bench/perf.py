@@ -7,7 +7,7 @@ Five numbers a Limo owner needs before trusting the 10 Hz control loop to a smal
    configured backend and a vocabulary fitted on a few frames of the drive; median and p90 over
    ``--repeats`` calls after a warm-up (``describe`` of the full view alone beside it);
 2. **control step split**: ``--steps`` steps of a navigation episode on a map, from the route's
-   start toward its goal (``robot.sim_episode.run_sim_navigation``, the loop of
+   start toward its goal (``robot.episode.sim.run_sim_navigation``, the loop of
    ``robot.run --mode navigate``; the goal is the image at the route's goal on a ``--map``, the
    last node on the map built here from the drive, which ends at the route's goal): render (``read``) / describe / decide / physics (``tick``)
    per step, median, mean and p90, and the episode's wall time per step, which the stages
@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import math
 import os
 import resource
@@ -46,6 +45,8 @@ from typing import Callable, Optional, Sequence
 import cv2
 import numpy as np
 from tqdm import tqdm
+
+from core.atomic import move_into_place, temporary_sibling, write_json
 
 EXIT_BAD_INPUT = 2
 EXIT_FAILED = 1
@@ -183,8 +184,8 @@ def time_calls_ms(fn: Callable[[], object], repeats: int, warmup: int = WARMUP_C
 def drive_route(world, route_name: str, config, appearance_seed: int, progress: bool) -> list[np.ndarray]:
     """RGB frames of the scripted teleoperator driving the route, one every
     ``recording.every_n_ticks`` control ticks (the mapping recording's rate)."""
-    from robot.sim_episode import route_pose
-    from robot.walkthrough import DriveError
+    from robot.episode.start import route_pose
+    from robot.mapping.drive import DriveError
     from sim.hal import SimLimo
     from sim.teleop import WaypointTeleop
 
@@ -218,20 +219,25 @@ def write_video(frames: Sequence[np.ndarray], path: Path, fps: float) -> Path:
     """Write RGB ``frames`` as an MP4 (mp4v), as a phone video of the drive would be."""
     path.parent.mkdir(parents=True, exist_ok=True)
     h, w = frames[0].shape[:2]
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
+    tmp = temporary_sibling(path)
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), fps, (w, h))
     if not writer.isOpened():
+        tmp.unlink(missing_ok=True)
         raise PerfInputError(f"{path}: OpenCV cannot write an MP4 (mp4v) here")
     try:
         for rgb in frames:
             writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-    finally:
+    except BaseException:
         writer.release()
-    return path
+        tmp.unlink(missing_ok=True)
+        raise
+    writer.release()
+    return move_into_place(tmp, path)
 
 
 def video_frames(path: Path, count: int) -> list[np.ndarray]:
     """Up to ``count`` RGB frames spread over the video ``path`` (for timing and the vocabulary)."""
-    from robot.frame_sources import VideoSource
+    from robot.mapping.sources import VideoSource
 
     frames = [f.rgb for f in VideoSource(path)]
     if not frames:
@@ -246,7 +252,7 @@ def video_frames(path: Path, count: int) -> list[np.ndarray]:
 def time_descriptor(config, frames: Sequence[np.ndarray], repeats: int) -> dict:
     """describe_thirds (and describe) of one 320x240 frame at batch 1, ms; the vocabulary is
     fitted on up to FIT_FRAMES of ``frames``; the timed calls cycle over the frames."""
-    from robot.descriptors.factory import make_descriptor
+    from descriptors.factory import make_descriptor
 
     descriptor = make_descriptor(config.descriptor.backend, **config.descriptor.settings)
     sized = [cv2.resize(f, TIMING_SIZE, interpolation=cv2.INTER_AREA) if f.shape[1::-1] != TIMING_SIZE else f
@@ -272,9 +278,9 @@ def time_descriptor(config, frames: Sequence[np.ndarray], repeats: int) -> dict:
 def time_mapping(video: Path, config, map_dirs: Sequence[Path], progress: bool) -> dict:
     """Map ``video`` once per folder of ``map_dirs`` with the ``robot.run --mode map --video``
     pipeline (a fresh descriptor each time, as the command builds one); frames per second."""
-    from robot.descriptors.factory import make_descriptor
-    from robot.frame_sources import VideoSource
-    from robot.map_building import build_map_from_frames
+    from descriptors.factory import make_descriptor
+    from robot.mapping.make import build_map_from_frames
+    from robot.mapping.sources import VideoSource
 
     seconds, summary = [], {}
     for map_dir in tqdm(map_dirs, desc="mapping the video", unit="run", disable=not progress, leave=False,
@@ -333,14 +339,13 @@ def time_control_steps(world, map_dir: Path, config, route_name: str, steps: int
     """``steps`` steps of a navigation episode on ``map_dir`` from the route's start toward
     ``goal_node`` (None: the image the camera sees at the route's goal, as ``robot.run --mode
     navigate --route`` does); per-stage ms from ``EpisodeOutcome.timings``."""
-    from robot.descriptors.factory import make_descriptor
-    from robot.sim_episode import run_sim_navigation
+    from descriptors.factory import make_descriptor
+    from robot.episode.sim import EpisodeOutputs, SimEpisode, run_sim_navigation
 
     descriptor = make_descriptor(config.descriptor.backend, **config.descriptor.settings)
-    result = run_sim_navigation(world, map_dir, descriptor, goal=goal_node, route=route_name,
-                                appearance_seed=appearance_seed, sim_config=config.sim,
-                                navigation=config.navigation, episode=config.episode, max_steps=steps,
-                                progress=progress)
+    episode = SimEpisode(world, map_dir, goal=goal_node, route=route_name, appearance_seed=appearance_seed,
+                         max_steps=steps)
+    result = run_sim_navigation(episode, descriptor, config, EpisodeOutputs(progress=progress))
     outcome = result.outcome
     timings = outcome.timings
     if not timings:
@@ -407,7 +412,7 @@ def run(args: argparse.Namespace, settings: PerfSettings, work: Path) -> dict:
     import torch
 
     from robot.settings import load_stack_config
-    from sim.world_spec import load_world
+    from sim.worlds import load_world
 
     config = load_stack_config(args.config)
     world = load_world(args.world)
@@ -465,12 +470,13 @@ def run(args: argparse.Namespace, settings: PerfSettings, work: Path) -> dict:
 def _input_errors() -> tuple[type[BaseException], ...]:
     """Errors a user causes with options or files: exit 2."""
     from controllers.planner import UnknownNodeError
+    from core.configfile import ConfigError
+    from descriptors.base import DescriptorError
     from maps.graph import MapError
-    from robot.configfile import ConfigError
-    from robot.descriptors.base import DescriptorError
-    from robot.frame_sources import FrameSourceError
-    from robot.navigation import DescriptorMismatchError, GoalImageError
-    from robot.sim_episode import StartError
+    from robot.episode.goal import GoalImageError
+    from robot.episode.setup import DescriptorMismatchError
+    from robot.episode.start import StartError
+    from robot.mapping.sources import FrameSourceError
 
     return (PerfInputError, ConfigError, MapError, DescriptorError, FrameSourceError, DescriptorMismatchError,
             GoalImageError, StartError, UnknownNodeError)
@@ -480,8 +486,8 @@ def _run_errors() -> tuple[type[BaseException], ...]:
     """Errors of the runs themselves (a drive that cannot finish, a goal not recognised): exit 1."""
     from controllers.localisation import GoalNotLocalisedError
     from controllers.planner import UnreachableGoalError
-    from robot.hal import HalError
-    from robot.walkthrough import DriveError
+    from core.hal import HalError
+    from robot.mapping.drive import DriveError
 
     return (DriveError, HalError, GoalNotLocalisedError, UnreachableGoalError)
 
@@ -518,7 +524,6 @@ def main(args: argparse.Namespace) -> int:
     print(format_report(report))
     print(f"\nwall time {report['run']['wall_s']:.1f} s")
     if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        write_json(args.json, report)
         print(f"wrote {args.json}")
     return 0

@@ -95,7 +95,8 @@ def _diagnosis(log: Path, trial, goal_node) -> Optional[str]:
     """The step log read against the map's true node poses (:mod:`robot.bench.diagnosis`), or
     None (no log, or a map without true poses)."""
     from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log, route_goal
-    from sim.world_spec import WorldError, load_world
+    from sim.world_spec import WorldError
+    from sim.worlds import load_world
 
     poses = map_node_poses(Path(trial.map_dir))
     if poses is None or not log.is_file():
@@ -124,8 +125,8 @@ def main(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if trial.config_digest is not None:
+        from core.configfile import ConfigError
         from robot.bench.trials import config_digest
-        from robot.configfile import ConfigError
         from robot.settings import load_stack_config
 
         try:

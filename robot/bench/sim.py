@@ -19,8 +19,9 @@ from typing import Any, Callable, Optional
 import numpy as np
 from tqdm import tqdm
 
-from robot.hal import Pose2D, VelocityCommand
-from sim.hal import SimConfig, SimLimo
+from core.hal import Pose2D, VelocityCommand
+from sim.config import SimConfig
+from sim.hal import SimLimo
 
 _WARMUP_STEPS = 3      # the first renders load textures into TinyRenderer's caches
 
@@ -55,7 +56,7 @@ def _load_world(name: str) -> tuple[Any, Pose2D]:
     """
     try:
         import sim.world  # noqa: F401  (SimLimo.connect imports build_world from it)
-        from sim.world_spec import load_world
+        from sim.worlds import load_world
     except ImportError as exc:
         raise ValueError(f"--world {name}: the world modules are not available ({exc})") from None
     spec = load_world(name)           # its WorldError (a ValueError) names the file and field

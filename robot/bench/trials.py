@@ -152,12 +152,12 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
     log and an MP4 with overlays (``python -m robot.bench replay``); neither changes the run."""
     from controllers.localisation import GoalNotLocalisedError
     from controllers.planner import PlanningError
+    from core.hal import Pose2D
+    from descriptors.factory import make_descriptor
     from maps.store import load_map
-    from robot.descriptors.factory import make_descriptor
-    from robot.hal import Pose2D
+    from robot.episode.sim import EpisodeOutputs, SimEpisode, run_sim_navigation
     from robot.settings import load_stack_config
-    from robot.sim_episode import run_sim_navigation
-    from sim.world_spec import load_world
+    from sim.worlds import load_world
 
     config = _cached(("config", config_path), lambda: load_stack_config(config_path))
     spec = _cached(("world", trial.world), lambda: load_world(trial.world))
@@ -166,7 +166,7 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
                          lambda: make_descriptor(config.descriptor.backend, **config.descriptor.settings))
     policy = None
     if trial.method == "sptm":
-        from robot.baseline import load_baseline, SptmPolicy
+        from robot.baseline import SptmPolicy, load_baseline
 
         head = _cached(("head", trial.baseline_path), lambda: load_baseline(trial.baseline_path))
         policy = _cached(("policy", trial.baseline_path, trial.map_dir), lambda: SptmPolicy(head, loaded))
@@ -177,12 +177,12 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
         navigation = replace(navigation, heading_hints=trial.method == "ours-hints")
     start = Pose2D(trial.start_x_m, trial.start_y_m, math.radians(trial.start_yaw_deg))
     try:
-        result = run_sim_navigation(spec, trial.map_dir, descriptor, route=trial.route, start=start,
-                                    appearance_seed=trial.appearance_seed, sim_config=config.sim,
-                                    navigation=navigation, episode=config.episode,
-                                    loaded_map=loaded, shortest_length_m=trial.shortest_length_m,
-                                    progress=progress, trace_png=trial.trace_png, action_policy=policy,
-                                    step_log=step_log, video_path=video_path)
+        episode = SimEpisode(spec, trial.map_dir, route=trial.route, start=start,
+                             appearance_seed=trial.appearance_seed, shortest_length_m=trial.shortest_length_m)
+        outputs = EpisodeOutputs(trace_png=trial.trace_png, video_path=video_path, step_log=step_log,
+                                 progress=progress)
+        result = run_sim_navigation(episode, descriptor, replace(config, navigation=navigation), outputs,
+                                    loaded_map=loaded, action_policy=policy)
     except (GoalNotLocalisedError, PlanningError) as exc:
         # the goal image matched no node, or the robot placed itself where no arc chain leads
         # to the goal (a wrong first localisation): a failed episode, not a broken run
@@ -200,7 +200,7 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
 def _failed_before_driving(trial: Trial, spec, exc: Exception) -> dict:
     """The record of an episode that ended with an error before or instead of driving to a goal
     (the robot was stopped where it stood: at its start)."""
-    from robot.episode_metrics import EpisodeMetrics
+    from robot.episode.metrics import EpisodeMetrics
 
     goal = spec.routes.evaluation[trial.route].goal
     distance = round(math.dist((trial.start_x_m, trial.start_y_m), goal[:2]), 4)

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import io
 import json
 import math
 import os
@@ -51,11 +52,12 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from robot.descriptors.base import DescriptorError
-from robot.descriptors.factory import make_descriptor
-from robot.descriptors.preprocess import MIN_SIDE_PX
-from robot.hal import Pose2D
-from robot.recording import RecordingError, read_recording
+from core.atomic import write_bytes, write_json
+from core.hal import Pose2D
+from descriptors.base import DescriptorError
+from descriptors.factory import make_descriptor
+from descriptors.preprocess import MIN_SIDE_PX
+from robot.mapping.recording import RecordingError, read_recording
 
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".ppm", ".pgm", ".tif", ".tiff", ".webp")
 DEFAULT_BACKENDS = ("effnet-vlad", "effnet-gap")
@@ -269,11 +271,9 @@ class FeatureStore:
         path = self._path(key)
         if path is None:
             return
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as f:
-            np.save(f, maps, allow_pickle=False)
-        os.replace(tmp, path)
+        buf = io.BytesIO()
+        np.save(buf, maps, allow_pickle=False)
+        write_bytes(path, buf.getvalue())
 
     def _extract(self, descriptor, images: ImageSet, role: str) -> np.ndarray:
         desc = f"features {role} ({_extractor_text(descriptor)})"
@@ -604,7 +604,6 @@ def main(args: argparse.Namespace) -> int:
                    "queries_evaluated": int(task.positives.any(axis=1).sum()), "match": task.match,
                    "vocabulary_fitted_on": "reference", "vocab_seeds": seeds, "timing": timing,
                    "backends": [r.to_dict() for r in results]}
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(payload, indent=2) + "\n", encoding="utf-8")
+        write_json(args.json, payload)
         print(f"\nwrote {args.json}")
     return 0

@@ -1,0 +1,103 @@
+"""The goal of an episode: a node id, an image file or an image, turned into a node of the map."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Union
+
+import cv2
+import numpy as np
+
+from controllers.config import Thresholds
+from controllers.localisation import GoalNotLocalisedError, Localisation, localise_goal_image
+from controllers.planner import UnknownNodeError
+from descriptors.base import Descriptor, DescriptorError
+from maps.graph import TopoMap
+
+
+class GoalImageError(ValueError):
+    """The goal image file cannot be read; the message names the file."""
+
+
+GoalSpec = Union[int, str, Path, np.ndarray]
+
+
+def parse_goal(text: str) -> Union[int, Path]:
+    """A command-line goal: an integer is a node id, anything else a path to an image file."""
+    stripped = str(text).strip()
+    if stripped.lstrip("-").isdigit():
+        return int(stripped)
+    return Path(stripped)
+
+
+def read_goal_image(path: Union[str, Path]) -> np.ndarray:
+    """The goal image as RGB uint8 (H, W, 3); raises :class:`GoalImageError` naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise GoalImageError(f"goal image {path}: no such file")
+    bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise GoalImageError(f"goal image {path}: cannot read it as an image (not an image, or damaged)")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+@dataclass(frozen=True)
+class ResolvedGoal:
+    """The goal node and how it was found (``localisation`` only for goal images)."""
+
+    node: int
+    source: str                                   # "node id 7" or "image goal.png" / "image"
+    localisation: Optional[Localisation] = None
+    image: Optional[np.ndarray] = None            # the goal image (RGB), for pictures
+    #: other places the goal image resembles almost as much (nodes more than
+    #: GOAL_RIVAL_HOPS arcs from the goal node scoring within GOAL_RIVAL_MARGIN of it): an
+    #: ambiguous goal picture (a dead end, a blank wall); the robot may stop at the wrong one
+    rivals: tuple[int, ...] = ()
+
+
+GOAL_RIVAL_HOPS = 2
+GOAL_RIVAL_MARGIN = 0.04
+
+
+def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
+                 thresholds: Thresholds) -> ResolvedGoal:
+    """Turn a goal (node id, image path or RGB image) into a node of the map.
+
+    A goal image is localised against every node with ``t_milestone`` (turning the robot cannot
+    help a fixed goal picture, so no match is final: :class:`GoalNotLocalisedError`).
+    """
+    if isinstance(goal, (bool, np.bool_)):
+        raise UnknownNodeError(f"goal {goal!r} is neither a node id nor an image")
+    if isinstance(goal, (int, np.integer)):
+        node = int(goal)
+        if node not in topomap:
+            ids = topomap.node_ids
+            raise UnknownNodeError(f"goal node {node} is not a node of the map ({len(ids)} nodes, ids "
+                                   f"{int(ids.min())}..{int(ids.max())})")
+        return ResolvedGoal(node=node, source=f"node id {node}")
+    if isinstance(goal, (str, Path)):
+        image, source = read_goal_image(goal), f"image {goal}"
+    else:
+        image, source = np.asarray(goal), "image"
+    try:
+        view = np.asarray(descriptor.describe([image]), dtype=np.float32)[0]
+    except DescriptorError as exc:
+        raise GoalImageError(f"goal {source}: {exc}") from None
+    try:
+        found = localise_goal_image(topomap.similarities(view), topomap.node_ids, thresholds.t_milestone)
+    except GoalNotLocalisedError as exc:
+        raise GoalNotLocalisedError(f"goal {source}: {exc}") from None
+    return ResolvedGoal(node=int(found.node), source=source, localisation=found, image=image,
+                        rivals=_goal_rivals(topomap, int(found.node), topomap.similarities(view)))
+
+
+def _goal_rivals(topomap: TopoMap, node: int, row: np.ndarray) -> tuple[int, ...]:
+    import networkx as nx
+
+    near = nx.single_source_shortest_path_length(topomap.graph.to_undirected(as_view=True), node,
+                                                 cutoff=GOAL_RIVAL_HOPS)
+    ids = topomap.node_ids.tolist()
+    best = float(row[ids.index(node)])
+    return tuple(int(n) for n, score in sorted(zip(ids, row), key=lambda t: -t[1])
+                 if n not in near and score >= best - GOAL_RIVAL_MARGIN)

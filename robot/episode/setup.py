@@ -1,0 +1,105 @@
+"""Setting an episode up from a map: the descriptor the map was built with, and the thresholds.
+
+* :func:`attach_descriptor` loads the map's vocabulary into the descriptor in use and refuses a
+  map built with another descriptor (:class:`DescriptorMismatchError`);
+* :func:`derive_thresholds` derives the navigation thresholds from the map's own statistics,
+  placed by ``navigation.threshold_fractions``; :func:`configure_thresholds` applies them unless
+  ``episode.thresholds_from_map`` is false (then ``navigation.thresholds`` are used as written).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from controllers.config import NavigationConfig, Thresholds
+from descriptors.base import Descriptor, DescriptorError
+from maps.graph import MapError
+from maps.store import LoadedMap
+from robot.episode.config import EpisodeConfig
+
+
+class DescriptorMismatchError(MapError):
+    """The map was built with another descriptor (backend, settings, vocabulary or dimension)
+    than the one in use; the message names the map folder and the difference."""
+
+
+def attach_descriptor(loaded_map: LoadedMap, descriptor: Descriptor) -> Descriptor:
+    """Load the map's vocabulary into ``descriptor`` (the one the configuration asks for) and check
+    that it is the descriptor the map was built with; returns it.
+
+    Raises :class:`DescriptorMismatchError` naming the map folder when the backend, settings,
+    vocabulary or dimension differ.
+    """
+    mine, theirs = descriptor.identity, loaded_map.identity
+    if mine.backend != theirs.backend or dict(mine.settings) != dict(theirs.settings):
+        raise DescriptorMismatchError(
+            f"map {loaded_map.path}: built with descriptor {theirs.backend!r} {dict(theirs.settings)}, but "
+            f"the configuration uses {mine.backend!r} {dict(mine.settings)}; navigate with the map's "
+            "descriptor or map again")
+    try:
+        descriptor.load_state(loaded_map.descriptor_state)
+    except DescriptorError as exc:
+        raise DescriptorMismatchError(f"map {loaded_map.path}: its descriptor state does not fit the "
+                                      f"descriptor in use: {exc}") from None
+    problem = theirs.mismatch(descriptor.identity)
+    if problem:
+        raise DescriptorMismatchError(f"map {loaded_map.path}: built with another descriptor than the one "
+                                      f"in use (map's value last): {problem}")
+    if descriptor.identity.dim and descriptor.identity.dim != loaded_map.topomap.dim:
+        raise DescriptorMismatchError(f"map {loaded_map.path}: descriptors have dimension "
+                                      f"{loaded_map.topomap.dim}, the descriptor in use {descriptor.identity.dim}")
+    return descriptor
+
+
+def map_self_similarity(loaded_map: LoadedMap) -> float:
+    """How alike a view taken at a node is to that node, estimated from the walkthrough.
+
+    The builder logs every frame's similarity to the node it stands at (``sim_to_node``); the
+    frames right after a node are views from (nearly) the node's pose. The estimate is the median
+    of that similarity over the first frame after each node (the first frame of every node's
+    stretch); 1.0 when the map has no build log (the identical view).
+    """
+    log = loaded_map.log
+    if log is None or log.n_frames < 3:
+        return 1.0
+    node = np.asarray(log.node)
+    sims = np.asarray(log.sim_to_node, dtype=float)
+    # frame k+1 is the first frame after frame k became (or returned to) a node
+    firsts = np.flatnonzero(node[1:] != node[:-1]) + 2
+    firsts = firsts[firsts < len(sims)]
+    values = sims[firsts]
+    values = values[np.isfinite(values)]
+    return float(np.median(values)) if values.size else 1.0
+
+
+def derive_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig, *,
+                      thirds_contrast: bool = True) -> Thresholds:
+    """The navigation thresholds derived from the map (the default; ``EpisodeConfig``).
+
+    Two consecutive nodes score about ``T_add_new_node`` against each other (the mapper added a
+    node when the similarity to the last one fell below it), and a view taken at a node scores
+    about :func:`map_self_similarity` against it. ``Thresholds.from_map`` places ``t_milestone``,
+    ``t_change_node`` and ``t_lost`` as fractions of that band (``navigation.threshold_fractions``).
+    ``t_limited_control`` is ``threshold_fractions.control_contrast`` when the voter sees contrast
+    scores (``thirds_contrast``), else kept from ``navigation.thresholds``: the raw thirds' scale
+    does not follow the map's node spacing.
+    """
+    t_add = float(loaded_map.thresholds.T_add_new_node)
+    self_sim = map_self_similarity(loaded_map)
+    if not self_sim > t_add + 0.02:
+        self_sim = min(1.0, t_add + 0.1)   # a degenerate log: keep a usable band above T_add_new_node
+    return Thresholds.from_map(t_add, self_sim, navigation.threshold_fractions,
+                               t_limited_control=None if thirds_contrast
+                               else navigation.thresholds.t_limited_control)
+
+
+def configure_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig,
+                         episode: EpisodeConfig) -> NavigationConfig:
+    """``navigation`` with the thresholds the episode uses: derived from the map when
+    ``episode.thresholds_from_map``, else as written."""
+    if not episode.thresholds_from_map:
+        return navigation
+    return replace(navigation, thresholds=derive_thresholds(loaded_map, navigation,
+                                                            thirds_contrast=episode.thirds_contrast))
