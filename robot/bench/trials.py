@@ -135,14 +135,16 @@ def _cached(key, make):
 
 
 def worker_init() -> None:
-    """Every process that runs trials: one torch / BLAS / OpenCV thread, so that results do not
-    depend on the number of workers (and N workers use N cores)."""
+    """Every process that runs trials: one inference (ONNX Runtime or torch), BLAS and OpenCV
+    thread, so that results do not depend on the number of workers (and N workers use N cores)."""
     import torch
 
+    from descriptors.inference import set_threads
     from robot.threads import limit_helper_threads
 
     limit_helper_threads()
-    torch.set_num_threads(1)
+    torch.set_num_threads(1)            # the learned baseline's head and features run in torch
+    set_threads(1)
 
 
 def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Optional[str] = None,

@@ -22,7 +22,7 @@ extractor (``effnet-vlad``, ``effnet-gap``, ``anyloc-dinov2``) extract local fea
 image set and extractor settings; ``--cache DIR`` keeps them on disk between runs.
 
 Speed is timed separately, at batch 1, on query frames resized to ``--timing-size`` (the
-robot camera's 320x240 by default) with ``--threads`` torch threads: ``describe`` of one frame,
+robot camera's 320x240 by default) with ``--threads`` inference threads: ``describe`` of one frame,
 and ``describe_thirds`` (the frame and its Left / Middle / Right thirds, what a control step
 needs). Median milliseconds per frame, and the fastest call (the better estimate of the
 uncontended cost on a shared CPU). numpy's OpenBLAS threads, left spinning after VLAD's
@@ -249,6 +249,9 @@ class FeatureStore:
         extractor = descriptor.extractor
         ident = {"extractor": type(extractor).__name__, "settings": extractor.settings,
                  "files": images.fingerprint()}
+        engine = getattr(extractor, "runtime", {}).get("engine")
+        if engine is not None:               # the same features to 1e-6, but measured per engine
+            ident["engine"] = engine
         weights = getattr(extractor, "weights_path", None)
         if weights is not None and Path(weights).is_file():
             st = Path(weights).stat()
@@ -419,8 +422,9 @@ def time_batch1(fn, frames: Sequence[np.ndarray]) -> Timing:
 
 
 def _set_threads(threads: int) -> None:
-    import torch  # only for backends that use it: the tiny backend runs without loading torch
-    torch.set_num_threads(threads)
+    from descriptors.inference import set_threads
+
+    set_threads(threads)      # torch (when loaded) and ONNX Runtime sessions made from now on
 
 
 # --------------------------------------------------------------------------------------------
@@ -458,7 +462,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="query frames timed at batch 1 per backend (default 20; 0 skips timing)")
     g.add_argument("--timing-size", default="320x240", metavar="WxH",
                    help="frames are resized to this before timing, as the camera delivers them (default 320x240)")
-    g.add_argument("--threads", type=int, default=2, help="torch threads (default 2, this CPU's cores)")
+    g.add_argument("--threads", type=int, default=2,
+                   help="inference threads, torch or ONNX Runtime (default 2, this CPU's cores)")
     g.add_argument("--cv2-threads", type=int, default=None, metavar="N",
                    help="OpenCV threads (default: OpenCV's own choice); 1 keeps OpenCV's idle pool from "
                         "competing with torch's threads on a small CPU")

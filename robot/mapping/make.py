@@ -53,9 +53,9 @@ def describe_frames(descriptor: Descriptor, images: Sequence[np.ndarray], batch_
     return np.concatenate(rows, axis=0)
 
 
-#: Frames per forward pass while mapping: on a CPU, batches of 4 run about twice as fast per
-#: frame as 16 (python -m robot.bench perf: 111 vs 204 ms per frame, 1 thread) and need less memory.
-MAPPING_BATCH = 4
+#: Frames per forward pass while mapping: on a CPU one frame at a time is fastest per frame in
+#: either engine (and needs the least memory); larger batches only spill the caches.
+MAPPING_BATCH = 1
 
 
 def _reuses_local_features(descriptor: Descriptor) -> bool:
