@@ -35,12 +35,19 @@ class ConfigError(ValueError):
 def read_yaml_mapping(path: str | Path) -> dict:
     """Read a YAML file that must hold a mapping; errors name the file."""
     path = Path(path)
+    if path.is_dir():
+        raise ConfigError(str(path), "", "is a folder, expected a YAML file")
     if not path.is_file():
         raise ConfigError(str(path), "", "file not found")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except yaml.YAMLError as exc:
-        raise ConfigError(str(path), "", f"not valid YAML ({exc})") from None
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = " ".join(str(getattr(exc, "problem", None) or exc).split())
+        raise ConfigError(str(path), "", f"not valid YAML{where}: {problem}") from None
+    except UnicodeDecodeError:
+        raise ConfigError(str(path), "", "not a text file (not UTF-8)") from None
     if data is None:
         data = {}
     if not isinstance(data, dict):
@@ -48,12 +55,21 @@ def read_yaml_mapping(path: str | Path) -> dict:
     return data
 
 
-def load_config(cls: Type[T], path: str | Path, overrides: Mapping[str, Any] | None = None) -> T:
-    """Build dataclass ``cls`` from the YAML file at ``path`` (plus top-level ``overrides``)."""
+def load_config(cls: Type[T], path: str | Path, overrides: Mapping[str, Any] | None = None,
+                section: str | None = None) -> T:
+    """Build dataclass ``cls`` from the YAML file at ``path`` (plus top-level ``overrides``).
+
+    ``section``: when the file has this top-level key (a stack config), build ``cls`` from that
+    section alone (errors name ``section.field``); otherwise from the whole file."""
     data = read_yaml_mapping(path)
+    field = ""
+    if section is not None and section in data:
+        data, field = data[section], section
+        if not isinstance(data, dict):
+            raise ConfigError(str(path), section, f"expected a mapping, got {_describe(data)}")
     if overrides:
         data = {**data, **overrides}
-    return from_mapping(cls, data, source=str(path))
+    return from_mapping(cls, data, source=str(path), field=field)
 
 
 def from_mapping(cls: Type[T], data: Any, source: str = "<config>", field: str = "") -> T:
@@ -161,4 +177,9 @@ def _convert_dataclass(cls: Any, value: Any, source: str, field: str) -> Any:
     except (ValueError, TypeError) as exc:
         if isinstance(exc, ConfigError):
             raise
-        raise ConfigError(source, field or cls.__name__, str(exc)) from None
+        # validators start their message with the field's name: name that field in the path
+        message = str(exc)
+        name, _, rest = message.partition(" ")
+        if name.split(".")[0] in fields and rest:
+            raise ConfigError(source, _join(field, name), rest if rest.startswith("must ") else message) from None
+        raise ConfigError(source, field or cls.__name__, message) from None

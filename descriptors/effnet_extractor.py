@@ -23,6 +23,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from core.validate import check_count
 from descriptors.base import DescriptorError
 from descriptors.efficientnet_lite_spec import (
     INPUT_MEAN,
@@ -46,6 +47,9 @@ class EffNetExtractor:
                  weights: str | Path | None = None, batch_size: int = 16, engine: Optional[str] = None,
                  threads: Optional[int] = None, providers: Optional[Sequence[str]] = None,
                  precision: str = "fp32"):
+        for name, value, least in (("input_width_px", input_width_px, 8), ("input_height_px", input_height_px, 8),
+                                   ("batch_size", batch_size, 1)):
+            check_count(name, value, least, error=DescriptorError)
         self.blocks = tuple(sorted(set(int(b) for b in blocks)))
         if not self.blocks or self.blocks[0] < 0 or self.blocks[-1] > 15:
             raise DescriptorError(f"EfficientNet-Lite0 blocks must be in 0..15, got {list(blocks)}")

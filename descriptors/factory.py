@@ -20,6 +20,7 @@ from __future__ import annotations
 import inspect
 from typing import Callable, Mapping
 
+from core.validate import check_count
 from descriptors.base import Descriptor, DescriptorError
 
 
@@ -28,6 +29,8 @@ def _effnet_vlad(blocks=(13,), input_width_px=320, input_height_px=240, clusters
                  precision="fp32"):
     from descriptors.dense import DenseVlad
     from descriptors.effnet_extractor import EffNetExtractor
+    for name, value, least in (("clusters", clusters, 1), ("seed", seed, 0), ("max_features", max_features, 1)):
+        check_count(name, value, least, error=DescriptorError)
     extractor = EffNetExtractor(_blocks(blocks), input_width_px, input_height_px, weights, batch_size,
                                 engine=engine, threads=threads, providers=providers, precision=precision)
     return DenseVlad("effnet-vlad", extractor, clusters, seed, max_features)

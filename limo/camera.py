@@ -24,6 +24,7 @@ from typing import Callable, Optional, Union
 
 import numpy as np
 
+from core.cli import quiet_video_decoder
 from core.hal import HalError
 
 
@@ -100,6 +101,7 @@ class CameraSource:
         self._is_file = isinstance(source, str) and "://" not in source
         if self._is_file and not Path(source).is_file():
             raise CameraError(f"camera source {source!r}: no such video file")
+        quiet_video_decoder()
         cap = cv2.VideoCapture(source)
         if not cap.isOpened():
             cap.release()

@@ -8,9 +8,10 @@ from typing import Optional
 
 from core.hal import HalError
 from limo.camera import CameraSource
+from limo.config import LimoSerialConfig
 from limo.emulator.firmware import EmulatorConfig, LimoEmulator
 from limo.emulator.models import BaseModel
-from limo.serial_base import LimoSerialBase, LimoSerialConfig
+from limo.serial_base import LimoSerialBase
 
 
 class EmulatedSerialLimo(LimoSerialBase):

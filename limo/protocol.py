@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 import struct
 from dataclasses import dataclass
-from typing import List, Tuple, Union
+from typing import List, Optional, Tuple, Union
 
 FRAME_LEN = 14
 HEADER = 0x55
@@ -293,27 +293,71 @@ def describe_error_bits(bits: int) -> List[str]:
     return names
 
 
+# ---------------------------------------------------------------------------------- validity
+
+#: every id the Limo protocol uses: host -> base commands, base -> host feedback, and the actuator
+#: states AgileX's driver ignores. The checksum covers the payload only, so noise that happens to
+#: hold ``55 0E`` and a matching sum is only caught by the id and by the values.
+KNOWN_IDS = frozenset({ID_CONTROL_MODE, ID_MOTION_COMMAND, ID_SYSTEM_STATE, ID_MOTION_STATE, ID_ODOMETRY,
+                       ID_IMU_ACCEL, ID_IMU_GYRO, ID_IMU_EULER, *range(0x251, 0x255), *range(0x261, 0x265)})
+
+#: the largest magnitudes a Limo can report (well beyond what it does: 1 m/s, a few rad/s, 12 V)
+MAX_SPEED_MPS = 5.0
+MAX_YAW_RATE_RADPS = 20.0
+MAX_STEERING_RAD = 1.6
+MAX_BATTERY_V = 30.0
+
+
+def implausible(msg: Message) -> Optional[str]:
+    """Why a decoded message cannot come from a Limo (a value out of range), or None."""
+    if isinstance(msg, (MotionCommand, MotionState)):
+        for name, value, limit in (("linear_mps", msg.linear_mps, MAX_SPEED_MPS),
+                                   ("angular_radps", msg.angular_radps, MAX_YAW_RATE_RADPS),
+                                   ("lateral_mps", msg.lateral_mps, MAX_SPEED_MPS),
+                                   ("steering_rad", msg.steering_rad, MAX_STEERING_RAD)):
+            if abs(value) > limit:
+                return f"{type(msg).__name__}.{name} {value:g} beyond {limit:g}"
+    elif isinstance(msg, SystemState):
+        if msg.battery_v > MAX_BATTERY_V:
+            return f"SystemState.battery_v {msg.battery_v:g} beyond {MAX_BATTERY_V:g}"
+        if msg.control_mode > 3 or msg.motion_mode > 3:
+            return f"SystemState control_mode {msg.control_mode} / motion_mode {msg.motion_mode} not a mode (0..3)"
+    elif isinstance(msg, ImuEuler):       # (accelerations and rates saturate at the wire's +-327.67)
+        if abs(msg.yaw_deg) > 360.0 or abs(msg.pitch_deg) > 180.0 or abs(msg.roll_deg) > 180.0:
+            return "ImuEuler angle beyond +-360 / +-180 deg"
+    return None
+
+
 # ---------------------------------------------------------------------------------- parser
 
 
 @dataclass(frozen=True)
 class ParserStats:
     """What a :class:`FrameParser` has seen: good frames, bytes skipped while hunting for a frame
-    start, and candidate frames rejected for a bad checksum (their first byte is counted as
-    skipped too, since the hunt resumes one byte later)."""
+    start, and candidate frames rejected for a bad checksum, an unknown id or an implausible value
+    (their first byte is counted as skipped too, since the hunt resumes one byte later), with the
+    last rejection's reason."""
 
     frames: int
     bytes_skipped: int
     bad_checksums: int
+    unknown_ids: int = 0
+    implausible: int = 0
+    last_rejected: str = ""
+
+    @property
+    def rejected(self) -> int:
+        return self.bad_checksums + self.unknown_ids + self.implausible
 
 
 class FrameParser:
     """Turns an arbitrary byte stream into messages; never raises on any input.
 
     ``feed(data)`` appends bytes and returns every message completed by them. Frames may be split
-    across calls. After garbage or a frame with a bad checksum the parser resynchronises on the
-    next ``0x55 0x0E`` (a rejected candidate is skipped by one byte only, so a real frame that
-    starts inside it is still found).
+    across calls. A candidate frame is rejected for a bad checksum, an id the protocol does not
+    use (:data:`KNOWN_IDS`) or an implausible value (:func:`implausible`); after garbage or a
+    rejected candidate the parser resynchronises on the next ``0x55 0x0E`` (a rejected candidate
+    is skipped by one byte only, so a real frame that starts inside it is still found).
     """
 
     def __init__(self) -> None:
@@ -321,10 +365,13 @@ class FrameParser:
         self._frames = 0
         self._skipped = 0
         self._bad = 0
+        self._unknown = 0
+        self._implausible = 0
+        self._last = ""
 
     @property
     def stats(self) -> ParserStats:
-        return ParserStats(self._frames, self._skipped, self._bad)
+        return ParserStats(self._frames, self._skipped, self._bad, self._unknown, self._implausible, self._last)
 
     def reset(self) -> None:
         """Drop buffered bytes (e.g. after reopening the port); counters are kept."""
@@ -350,12 +397,25 @@ class FrameParser:
             if end - pos < FRAME_LEN:
                 break
             payload = bytes(buf[pos + 4:pos + 12])
+            msg_id = (buf[pos + 2] << 8) | buf[pos + 3]
+            msg = why = None
             if sum(payload) & 0xFF != buf[pos + 13]:
                 self._bad += 1
+            elif msg_id not in KNOWN_IDS:
+                self._unknown += 1
+                why = f"unknown id {msg_id:#05x}"
+            else:
+                msg = decode_payload(msg_id, payload)
+                why = implausible(msg)
+                if why is not None:
+                    self._implausible += 1
+            if msg is None or why is not None:
+                if why is not None:
+                    self._last = why
                 self._skipped += 1
                 pos += 1
                 continue
-            out.append(decode_payload((buf[pos + 2] << 8) | buf[pos + 3], payload))
+            out.append(msg)
             self._frames += 1
             pos += FRAME_LEN
         del buf[:pos]

@@ -24,14 +24,14 @@ import errno
 import math
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable, Optional
 
 import serial
 
-from core.hal import STOP, HalError, Odometry, RobotBase, SensorFrame, VelocityCommand, VelocityLimits
-from core.validate import check_at_least, check_choice, check_count, check_positive
+from core.hal import STOP, HalError, Odometry, RobotBase, SensorFrame, VelocityCommand
 from limo.camera import CameraError, CameraSource
+from limo.config import LimoSerialConfig
 from limo.protocol import (
     ERROR_BITS_SEVERE,
     ControlModeCommand,
@@ -47,54 +47,10 @@ from limo.protocol import (
     encode_enable,
     encode_motion,
 )
-from limo.state_estimate import PlanarEstimate, StateEstimateConfig, StateEstimator
+from limo.state_estimate import PlanarEstimate, StateEstimator
 
 PORT_HINT = ("the Limo's Jetson uses /dev/ttyTHS1 (some Orin units /dev/ttyTHS0); a USB-serial "
              "adapter shows up as /dev/ttyUSB0; list ports with `python -m serial.tools.list_ports`")
-
-
-@dataclass(frozen=True)
-class LimoSerialConfig:
-    """Everything the serial backend needs; loadable from YAML with :func:`core.configfile.load_config`."""
-
-    #: device path or any pyserial URL (``loop://``, ``/dev/pts/N`` from the emulator)
-    port: str = "/dev/ttyTHS1"
-    #: the Limo base talks 460800 8N1
-    baud: int = 460800
-    #: motion frames per second, sent even when unchanged (>= 20; AgileX's SDK sends at 50)
-    command_rate_hz: float = 50.0
-    #: silence on the link longer than this is a fault: report it and command zero
-    feedback_timeout_s: float = 0.5
-    #: connect() waits this long for the first feedback frame and fails otherwise (0: do not wait)
-    connect_timeout_s: float = 1.0
-    #: the period tick() lets pass (the controller's cycle)
-    control_period_s: float = 0.1
-    limits: VelocityLimits = field(default_factory=VelocityLimits)
-    #: metres per odometry count of 0x311 (AgileX bases report mm; change if the wheels disagree)
-    odometry_unit_m: float = 0.001
-    #: +1 if the gyro's z axis is counter-clockwise positive on this base, -1 otherwise
-    gyro_yaw_sign: int = 1
-    #: zero-velocity frames sent on close before the port is released
-    stop_frames: int = 3
-    #: camera for SensorFrame.rgb: device index ("0"), URL or video file; None: no camera
-    camera: Optional[str] = None
-    camera_width: Optional[int] = None
-    camera_height: Optional[int] = None
-    #: connect() waits this long for the camera's first frame and fails naming the camera
-    #: otherwise (a UVC camera takes a moment to open; navigation needs an image from the start)
-    camera_timeout_s: float = 5.0
-    estimate: StateEstimateConfig = field(default_factory=StateEstimateConfig)
-
-    def __post_init__(self) -> None:
-        if not self.port:
-            raise ValueError("port must name a device or pyserial URL, e.g. /dev/ttyTHS1")
-        check_count("baud", self.baud, 1)
-        check_at_least("command_rate_hz", self.command_rate_hz, 20.0)    # the base needs a steady stream
-        for name in ("feedback_timeout_s", "control_period_s", "odometry_unit_m", "camera_timeout_s"):
-            check_positive(name, getattr(self, name))
-        check_at_least("connect_timeout_s", self.connect_timeout_s, 0.0)
-        check_choice("gyro_yaw_sign", self.gyro_yaw_sign, (1, -1))
-        check_count("stop_frames", self.stop_frames, 1)
 
 
 @dataclass(frozen=True)
@@ -109,6 +65,16 @@ class LinkStats:
     write_errors: int
     #: seconds since the last feedback frame (None before the first)
     feedback_age_s: Optional[float]
+    #: candidate frames with a good checksum rejected for an unknown id or an implausible value
+    #: (limo.protocol.FrameParser), and why the last one was
+    unknown_ids: int = 0
+    implausible: int = 0
+    last_rejected: str = ""
+
+    @property
+    def rejected(self) -> int:
+        """Candidate frames thrown away: bad checksum, unknown id, implausible value."""
+        return self.bad_checksums + self.unknown_ids + self.implausible
 
 
 @dataclass(frozen=True)
@@ -121,6 +87,11 @@ class LimoFeedback:
     accel: Optional[ImuAccel] = None
     gyro: Optional[ImuGyro] = None
     euler: Optional[ImuEuler] = None
+
+
+class PortError(HalError):
+    """The serial port cannot be opened (missing, no permission, in use, not a serial device):
+    an argument that cannot work, where a base that does not answer is a failed run."""
 
 
 def describe_open_error(port: str, baud: int, exc: BaseException) -> str:
@@ -141,13 +112,13 @@ def describe_open_error(port: str, baud: int, exc: BaseException) -> str:
 
 
 def open_port(port: str, baud: int, read_timeout_s: float = 0.02) -> serial.SerialBase:
-    """Open ``port`` (a path or pyserial URL) 8N1 raw, exclusively; errors become :class:`HalError`."""
+    """Open ``port`` (a path or pyserial URL) 8N1 raw, exclusively; errors become :class:`PortError`."""
     try:
         return serial.serial_for_url(port, baudrate=baud, bytesize=serial.EIGHTBITS,
                                      parity=serial.PARITY_NONE, stopbits=serial.STOPBITS_ONE,
                                      timeout=read_timeout_s, write_timeout=0.2, exclusive=True)
     except (serial.SerialException, OSError, ValueError) as exc:
-        raise HalError(describe_open_error(port, baud, exc)) from exc
+        raise PortError(describe_open_error(port, baud, exc)) from exc
 
 
 class LimoSerialBase(RobotBase):
@@ -236,14 +207,17 @@ class LimoSerialBase(RobotBase):
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             with self._lock:
-                if self._last_feedback_s is not None:
+                # the first system state too (sent at a lower rate): battery and mode are known
+                # when connect() returns
+                if self._last_feedback_s is not None and self._feedback.system is not None:
                     return
                 if self._port_error:
                     raise HalError(self._port_error)
             time.sleep(0.005)
         stats = self._parser.stats
-        why = ("bytes arrived but none formed a valid frame: is the baud rate 460800?"
-               if stats.bytes_skipped or stats.bad_checksums else
+        why = ("frames arrived but no system state (0x211): is this a Limo base?" if self._last_feedback_s is not None
+               else "bytes arrived but none formed a valid frame: is the baud rate 460800?"
+               if stats.bytes_skipped or stats.rejected else
                "nothing arrived: is the base switched on, and is this its port?")
         raise HalError(f"no feedback from the Limo base on {self.config.port!r} within {timeout} s: {why} "
                        f"({PORT_HINT})")
@@ -356,7 +330,7 @@ class LimoSerialBase(RobotBase):
             p, c = self._parser.stats, self._counts
             age = None if self._last_feedback_s is None else self._clock() - self._last_feedback_s
             return LinkStats(c["sent"], c["received"], c["feedback"], p.bytes_skipped, p.bad_checksums,
-                             c["write_errors"], age)
+                             c["write_errors"], age, p.unknown_ids, p.implausible, p.last_rejected)
 
     def _require_connected(self) -> None:
         if self._serial is None:

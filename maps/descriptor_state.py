@@ -50,6 +50,13 @@ def decode_state(data: bytes, where: str) -> dict:
         with np.load(io.BytesIO(data), allow_pickle=False) as npz:
             arrays = {k: npz[k] for k in npz.files}
         settings = json.loads(bytes(arrays.pop(_SETTINGS_KEY)).decode("utf-8"))
-    except (ValueError, KeyError, OSError, EOFError, zipfile.BadZipFile) as exc:
+    except KeyError:
+        raise MapError(f"{where}: not a descriptor state written by this software (no settings entry)") from None
+    except ValueError as exc:
+        if "allow_pickle" in str(exc):   # numpy's words for Python objects in the file, never loaded
+            raise MapError(f"{where}: not a descriptor state written by this software (it holds Python "
+                           "objects, which are never loaded from a map)") from None
         raise MapError(f"{where}: not a readable descriptor state ({exc})") from None
+    except (OSError, EOFError, zipfile.BadZipFile) as exc:
+        raise MapError(f"{where}: not a readable descriptor state (damaged or not an .npz file: {exc})") from None
     return {**settings, **arrays}

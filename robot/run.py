@@ -9,8 +9,9 @@
     python -m robot.run --mode navigate --map DIR --goal goal.jpg --hal serial --port /dev/ttyTHS1 --camera 0
 
 Configuration is read once here (``configs/default.yaml`` or ``--config FILE``) and passed down.
-Every error a user can cause ends in one clear line on stderr and a non-zero exit code; the
-robot is commanded to zero velocity on every way out, Ctrl-C included.
+Every error a user can cause ends in one clear line on stderr and exit status 2, before the robot
+moves or anything is written (paths are checked first); the robot is commanded to zero velocity on
+every way out: Ctrl-C (130), SIGTERM (143), SIGHUP (129) and errors.
 """
 
 from __future__ import annotations
@@ -20,13 +21,23 @@ import json
 import sys
 from pathlib import Path
 
-EXIT_USAGE = 2        # bad arguments, configuration or input files
-EXIT_FAILED = 1       # the run itself failed (robot stuck, toppled, lost)
-EXIT_INTERRUPTED = 130
+from core.cli import (
+    EXIT_FAILED,
+    EXIT_USAGE,
+    Parser,
+    UsageError,
+    check_output_file,
+    check_output_folder,
+    existing_file,
+    existing_folder,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m robot.run",
         description="Teach a route by driving it once, then navigate it with one camera.")
     parser.add_argument("--mode", required=True, choices=["map", "navigate", "show"],
@@ -39,9 +50,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="output folder (default runs/<world>/)")
     parser.add_argument("--config", type=Path, default=None,
                         help="stack configuration YAML (default configs/default.yaml)")
-    parser.add_argument("--appearance-seed", type=int, default=0,
+    parser.add_argument("--appearance-seed", type=non_negative_int, default=0,
                         help="lighting and prop placement of the world (0 = as written in its YAML)")
-    parser.add_argument("--seed", type=int, default=None,
+    parser.add_argument("--seed", type=non_negative_int, default=None,
                         help="simulator noise seed (overrides sim.seed of the configuration)")
     parser.add_argument("--gui", action="store_true", help="open the PyBullet window (needs a display)")
     source = parser.add_argument_group("mapping from a recording (no robot)")
@@ -50,8 +61,9 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--images", type=Path, help="build the map from the images of this folder (name order)")
     src.add_argument("--recording", type=Path, help="build the map from a drive recorded earlier by --mode map")
     sampling = source.add_mutually_exclusive_group()
-    sampling.add_argument("--every", type=int, default=1, metavar="N", help="keep every Nth frame (default 1)")
-    sampling.add_argument("--every-s", type=float, default=None, metavar="S", help="keep one frame every S seconds")
+    sampling.add_argument("--every", type=positive_int, default=1, metavar="N", help="keep every Nth frame (default 1)")
+    sampling.add_argument("--every-s", type=positive_float, default=None, metavar="S",
+                          help="keep one frame every S seconds")
     parser.add_argument("--map", type=Path, default=None,
                         help="map folder (default <out>/map); for --mode show, the map to draw")
     parser.add_argument("--no-map", action="store_true", help="--mode map: record the drive only")
@@ -71,16 +83,20 @@ def build_parser() -> argparse.ArgumentParser:
                      help="top-down picture of the drive over the map (simulator; default <out>/navigation.png)")
     nav.add_argument("--record-video", type=Path, default=None, metavar="MP4",
                      help="write the camera view with overlays (nodes, scores, action, state) as MP4")
-    nav.add_argument("--max-steps", type=int, default=None, help="step budget (default from the route length)")
+    nav.add_argument("--max-steps", type=positive_int, default=None,
+                     help="step budget, >= 1 (default from the route length)")
     hal = parser.add_argument_group("robot base")
     hal.add_argument("--hal", choices=["sim", "serial", "serial-twin"], default="sim",
                      help="sim: the PyBullet Limo; serial: a Limo base on --port with --camera; serial-twin: "
                           "the PyBullet Limo behind the base emulator on a pseudo-terminal, every command "
                           "crossing the serial backend as bytes")
-    hal.add_argument("--port", default=None, help="--hal serial: the base's serial device or a pyserial URL")
-    hal.add_argument("--baud", type=int, default=460800, help="--hal serial: baud rate (Limo: 460800)")
+    hal.add_argument("--port", default=None,
+                     help="--hal serial: the base's serial device or a pyserial URL (default: the config's "
+                          "serial.port, /dev/ttyTHS1)")
+    hal.add_argument("--baud", type=positive_int, default=None,
+                     help="--hal serial: baud rate (default: the config's serial.baud, 460800)")
     hal.add_argument("--camera", default=None,
-                     help="--hal serial: camera device index, stream URL or video file")
+                     help="--hal serial: camera device index, stream URL or video file (default: serial.camera)")
     return parser
 
 
@@ -119,7 +135,7 @@ def _mode_map(args, config) -> int:
         summary: dict = {}
     elif args.recording:
         out = args.recording
-        summary = json.loads((out / "summary.json").read_text()) if (out / "summary.json").is_file() else {}
+        summary = _read_summary(out / "summary.json")
         source = RecordingSource(out, sampling)
         world_picture = world_picture_of(summary.get("world"), int(summary.get("appearance_seed", 0)))
     else:
@@ -146,6 +162,19 @@ def _mode_map(args, config) -> int:
     write_json(out / "summary.json", {**summary, "map": str(map_dir), **built.summary})
     _print_map_summary(built.summary, map_dir)
     return 0
+
+
+def _read_summary(path: Path) -> dict:
+    """A recording's summary.json (empty when there is none); a broken one is a usage error."""
+    if not path.is_file():
+        return {}
+    try:
+        summary = json.loads(path.read_text(encoding="utf-8"))
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise UsageError(f"{path}: not a readable summary of a recording ({exc})") from None
+    if not isinstance(summary, dict):
+        raise UsageError(f"{path}: expected a JSON object (the summary of a recording)")
+    return summary
 
 
 def _mode_show(args, config) -> int:
@@ -203,8 +232,10 @@ def _navigate_sim(args, config):
 
 def _navigate_serial(args, config):
     """A real Limo (or an emulator on a pty): goal node or image, no ground truth."""
+    from dataclasses import replace
+
     from core.atomic import write_json
-    from limo.serial_base import LimoSerialBase, LimoSerialConfig
+    from limo.serial_base import LimoSerialBase
     from maps.store import load_map
     from robot.episode.config import step_budget
     from robot.episode.goal import parse_goal, resolve_goal
@@ -212,28 +243,25 @@ def _navigate_serial(args, config):
     from robot.episode.metrics import compute_metrics
     from robot.episode.setup import attach_descriptor, configure_thresholds
 
-    if args.port is None:
-        raise UsageError("--hal serial needs --port DEV (the base's serial device, e.g. /dev/ttyTHS1)")
     if args.goal is None:
         raise UsageError("--hal serial needs --goal (a node id or a goal image); routes exist only in simulation")
     loaded = load_map(args.map)
     descriptor = attach_descriptor(loaded, _make_descriptor(config))
     nav = configure_thresholds(loaded, config.navigation, config.episode)
     goal = resolve_goal(parse_goal(args.goal), loaded.topomap, descriptor, nav.thresholds)
-    serial_config = LimoSerialConfig(port=args.port, baud=args.baud, camera=args.camera,
-                                     control_period_s=config.sim.control_period_s)
-    budget = args.max_steps or step_budget(config.episode, nav, serial_config.control_period_s)
+    overrides = {k: v for k, v in (("port", args.port), ("baud", args.baud), ("camera", args.camera))
+                 if v is not None}
+    serial_config = replace(config.serial, **overrides)
+    budget = args.max_steps if args.max_steps is not None else step_budget(config.episode, nav,
+                                                                          serial_config.control_period_s)
     with LimoSerialBase(serial_config) as base:
         outcome = run_episode(base, loaded.topomap, descriptor, goal.node, nav, budget)
     metrics = compute_metrics(outcome)
     if args.result is not None:
         write_json(args.result, {**metrics.to_dict(), "setup": {"map": str(args.map), "goal": goal.source,
-                                                                        "goal_node": goal.node, "port": args.port}})
+                                                                        "goal_node": goal.node,
+                                                                        "port": serial_config.port}})
     return metrics
-
-
-class UsageError(ValueError):
-    """Arguments that do not fit together."""
 
 
 def _navigation_input_errors() -> tuple[type[BaseException], ...]:
@@ -254,8 +282,34 @@ def _navigation_run_errors() -> tuple[type[BaseException], ...]:
     return (GoalNotLocalisedError, UnreachableGoalError)
 
 
+def check_paths(args: argparse.Namespace) -> None:
+    """Every file and folder argument, before any work: inputs exist and are what they must be
+    (a file, a folder), outputs can be written (:class:`UsageError` naming the option)."""
+    existing_file("--config", args.config, "YAML file")
+    existing_file("--video", args.video, "video file")
+    existing_folder("--images", args.images, "folder of images")
+    existing_folder("--recording", args.recording, "recording folder")
+    check_output_folder("--out", args.out)
+    if args.mode == "map":
+        check_output_folder("--map", args.map)
+        if args.map is not None and args.map.is_dir() and any(args.map.iterdir()) \
+                and not (args.map / "manifest.json").is_file():
+            raise UsageError(f"--map {args.map}: exists and is not a map folder; choose another folder")
+    else:
+        existing_folder("--map", args.map, "map folder")
+    for option, path in (("--result", args.result), ("--trace", args.trace), ("--record-video", args.record_video)):
+        check_output_file(option, path)
+    if args.goal is not None and not str(args.goal).strip().lstrip("-").isdigit():
+        existing_file("--goal", Path(args.goal), "goal image file (or a node id)")
+    if args.goal is not None and str(args.goal).strip().startswith("-") and str(args.goal).strip()[1:].isdigit():
+        raise UsageError(f"--goal {args.goal}: node ids are >= 0")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from core.shutdown import exit_status, interrupted_by, stop_on_signals
+
+    stop_on_signals()        # SIGTERM / SIGHUP end through the same cleanup as Ctrl-C
     from robot.threads import limit_helper_threads
 
     limit_helper_threads()
@@ -265,12 +319,16 @@ def main(argv: list[str] | None = None) -> int:
     from core.hal import HalError
     from descriptors.base import DescriptorError
     from maps.graph import MapError
-    from robot.mapping.drive import DriveError
     from robot.mapping.recording import RecordingError
     from robot.mapping.sources import FrameSourceError
     from robot.settings import load_stack_config
 
+    # the drive's error type comes with the simulator: only the mapping run needs it (the real
+    # base's navigation never loads pybullet)
+    drive_errors = _drive_errors() if args.mode == "map" else ()
+
     try:
+        check_paths(args)
         config = load_stack_config(args.config)
         if args.seed is not None or args.gui:
             sim = replace(config.sim, seed=config.sim.seed if args.seed is None else args.seed,
@@ -281,12 +339,25 @@ def main(argv: list[str] | None = None) -> int:
             *_navigation_input_errors()) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    except (DriveError, HalError, *_navigation_run_errors()) as exc:
+    except (*drive_errors, HalError, *_navigation_run_errors()) as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return EXIT_FAILED
-    except KeyboardInterrupt:
-        print("interrupted: the robot was stopped; nothing was written", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return EXIT_USAGE if _is_port_error(exc) else EXIT_FAILED
+    except KeyboardInterrupt as exc:
+        print(f"{interrupted_by(exc)}: the robot was stopped; nothing was written", file=sys.stderr)
+        return exit_status(exc)
+
+
+def _drive_errors() -> tuple[type[BaseException], ...]:
+    from robot.mapping.drive import DriveError
+
+    return (DriveError,)
+
+
+def _is_port_error(exc: BaseException) -> bool:
+    """A serial port that cannot be opened is an argument that cannot work (exit 2)."""
+    from limo.serial_base import PortError
+
+    return isinstance(exc, PortError)
 
 
 if __name__ == "__main__":

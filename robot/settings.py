@@ -13,7 +13,9 @@ from typing import Any
 
 from controllers.config import NavigationConfig
 from core.configfile import load_config
+from core.hal import VelocityLimits
 from core.validate import check_at_least, check_count, check_range
+from limo.config import LimoSerialConfig
 from maps.config import MappingConfig
 from robot.episode.config import EpisodeConfig
 from sim.config import SimConfig
@@ -56,6 +58,11 @@ class StackConfig:
     mapping: MappingConfig = field(default_factory=MappingConfig)
     navigation: NavigationConfig = field(default_factory=NavigationConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    #: the real base (--hal serial, python -m limo.monitor): port, calibration, limits. The limits
+    #: are the navigator's own speeds (forward 0.25 m/s, turns 0.5 rad/s): a first run is slow;
+    #: raise them after the first-run checklist (README)
+    serial: LimoSerialConfig = field(default_factory=lambda: LimoSerialConfig(
+        limits=VelocityLimits(max_v_mps=0.25, max_w_radps=0.5)))
 
 
 def load_stack_config(path: str | Path | None = None) -> StackConfig:

@@ -16,8 +16,8 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 import numpy as np
-import pybullet as p
 
+from sim.bullet import p
 from sim.config import CameraError, CameraSpec
 
 # The lighting keyword arguments of getCameraImage that a world may set (sim/world.py supplies

@@ -23,12 +23,12 @@ from dataclasses import dataclass
 from typing import Any, Optional
 
 import numpy as np
-import pybullet as p
 import pybullet_data
 
 from core.angles import wrap_angle
 from core.hal import STOP, GroundTruth, HalError, Odometry, Pose2D, RobotBase, SensorFrame, VelocityCommand
 from limo.geometry import TRACK_M, WHEEL_RADIUS_M, body_twist
+from sim.bullet import p
 from sim.camera import Camera, check_light
 from sim.config import SimConfig
 from sim.limo import LEFT_WHEELS, RIGHT_WHEELS, Limo

@@ -30,8 +30,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import pybullet as p
-
 from core.hal import Pose2D
 from limo.geometry import (
     BODY_LENGTH_M,
@@ -46,6 +44,7 @@ from limo.geometry import (
     WHEELBASE_M,
     wheel_speeds_radps,
 )
+from sim.bullet import p
 
 # The body box is lower than the 251 mm overall height (that counts the sensor mast) so the
 # forward camera at 0.18 m does not see the robot's own deck below ~80 deg HFOV.

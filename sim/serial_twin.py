@@ -52,16 +52,19 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Callable, List, Optional
 
 import numpy as np
-import pybullet as p
 
 from core.angles import wrap_angle
+from core.cli import Parser, non_negative_int, positive_float
 from core.hal import GroundTruth, HalError, Pose2D, VelocityCommand
+from core.shutdown import exit_status, interrupted_by, stop_on_signals
 from core.validate import check_positive
 from limo.camera import CameraError, CameraFrame
+from limo.config import LimoSerialConfig
 from limo.emulator.firmware import EmulatorConfig, LimoEmulator
 from limo.emulator.models import BaseState
 from limo.geometry import WHEEL_RADIUS_M
-from limo.serial_base import LimoSerialBase, LimoSerialConfig
+from limo.serial_base import LimoSerialBase
+from sim.bullet import p
 from sim.camera import Camera, check_light
 from sim.config import CameraSpec, SimConfig
 from sim.hal import SimLimo
@@ -516,17 +519,18 @@ def _measure(args: argparse.Namespace) -> int:
 
 
 def main(argv: Optional[List[str]] = None) -> int:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m sim.serial_twin",
         description="Drive the serial twin (the simulated Limo behind the base emulator on a pseudo-terminal) "
                     "forward and turning, and print what each emulator step and render costs, the command "
                     "and feedback rates achieved over the link, and simulated vs wall time.")
     parser.add_argument("--world", default="hospital", help="world name or YAML path; 'none' for a plain floor")
-    parser.add_argument("--seconds", type=float, default=8.0, help="how long to drive (default 8)")
-    parser.add_argument("--width", type=int, default=320, help="camera width in pixels (0: no camera)")
-    parser.add_argument("--height", type=int, default=240, help="camera height in pixels")
-    parser.add_argument("--camera-hz", type=float, default=10.0, help="renders per second (default 10)")
+    parser.add_argument("--seconds", type=positive_float, default=8.0, help="how long to drive (default 8)")
+    parser.add_argument("--width", type=non_negative_int, default=320, help="camera width in pixels (0: no camera)")
+    parser.add_argument("--height", type=non_negative_int, default=240, help="camera height in pixels")
+    parser.add_argument("--camera-hz", type=positive_float, default=10.0, help="renders per second (default 10)")
     args = parser.parse_args(argv)
+    stop_on_signals()
     from core.configfile import ConfigError  # noqa: PLC0415
 
     try:
@@ -534,8 +538,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     except (ConfigError, HalError, ValueError) as exc:
         print(f"serial_twin: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"serial_twin: {interrupted_by(exc)}", file=sys.stderr)
+        return exit_status(exc)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,6 @@ Colours passed to the drawing helpers are RGB tuples of 0..255 (the image is RGB
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ import cv2
 import numpy as np
 
 from core.atomic import write_bytes
+from core.cli import Parser
 from sim.appearance import apply_appearance
 from sim.geometry import polyline_length_m, prop_footprints, sample_polyline, wall_footprint
 from sim.textures import make_texture
@@ -308,7 +308,7 @@ def _draw_legend(td: TopDown, world: WorldSpec, appearance_seed: int, left: int,
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """``python -m sim.topdown WORLD [--seed N] [--px-per-m S] [--out PNG]``: check a world file
     and draw it, the quickest way to see a new world while writing it."""
-    parser = argparse.ArgumentParser(prog="python -m sim.topdown",
+    parser = Parser(prog="python -m sim.topdown",
                                      description="Check a world YAML and write its top-down picture.")
     parser.add_argument("world", help="a world name in configs/worlds (hospital, office) or a path to a YAML file")
     parser.add_argument("--seed", type=int, default=0, help="appearance seed: moves movable props (default 0)")

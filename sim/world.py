@@ -25,10 +25,10 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
-import pybullet as p
 import pybullet_data
 
 from sim.appearance import apply_appearance
+from sim.bullet import p
 from sim.textures import TextureSpec, texture_png
 from sim.world_spec import DecalSpec, LightSpec, PartSpec, PropSpec, WallSpec, WorldSpec
 

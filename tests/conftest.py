@@ -55,13 +55,17 @@ def _onnx_cache(tmp_path_factory):
 @pytest.fixture(autouse=True)
 def _process_state_stays_as_found(request):
     """Tests that run the harness in this process (its ``worker_init``) leave one torch thread
-    and ``OPENBLAS_NUM_THREADS=1`` behind, which every later subprocess inherits; SIGINT must
-    stay deliverable (Python's handler, unblocked, not ignored by the kernel) for the Ctrl-C
-    tests. Restore all of it after each test, and name a test that broke SIGINT."""
+    and ``OPENBLAS_NUM_THREADS=1`` behind, which every later subprocess inherits; commands run
+    in-process install their SIGTERM / SIGHUP handlers; SIGINT must stay deliverable (Python's
+    handler, unblocked, not ignored by the kernel) for the Ctrl-C tests. Restore all of it after
+    each test, and name a test that broke SIGINT."""
     env = {name: os.environ.get(name) for name in _THREAD_VARIABLES}
     torch = sys.modules.get("torch")
     threads = torch.get_num_threads() if torch is not None else None
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}   # CLIs run in-process set them
     yield
+    for signum, handler in handlers.items():
+        signal.signal(signum, handler)
     for name, value in env.items():
         if value is None:
             os.environ.pop(name, None)

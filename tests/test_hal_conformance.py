@@ -31,15 +31,15 @@ def _sim_limo_in_hospital() -> RobotBase:
 
 def _serial_limo_on_emulator() -> RobotBase:
     """The serial Limo backend talking real bytes to the base emulator over a pseudo-terminal."""
+    from limo.config import LimoSerialConfig
     from limo.emulated import EmulatedSerialLimo
-    from limo.serial_base import LimoSerialConfig
 
     return EmulatedSerialLimo(LimoSerialConfig(control_period_s=0.05))
 
 
 def _serial_twin_in_hospital() -> RobotBase:
     """The serial backend over a pty to the emulator backed by the PyBullet Limo and sim camera."""
-    from limo.serial_base import LimoSerialConfig
+    from limo.config import LimoSerialConfig
     from sim.serial_twin import SerialTwinLimo
     from sim.worlds import load_world
 

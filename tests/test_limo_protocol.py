@@ -160,7 +160,7 @@ def test_parser_recovers_every_frame_from_100k_random_bytes():
     chunks = []
     for _ in range(2000):
         chunks.append(bytes(rng.getrandbits(8) for _ in range(rng.randrange(0, 100))))
-        msg = MotionState(rng.randint(-32768, 32767) / 1000, rng.randint(-32768, 32767) / 1000,
+        msg = MotionState(rng.randint(-5000, 5000) / 1000, rng.randint(-20000, 20000) / 1000,
                           0.0, 0.0) if rng.random() < 0.5 else WheelOdometry(rng.getrandbits(31), -rng.getrandbits(31))
         expected.append(msg)
         chunks.append(encode(msg))
@@ -193,3 +193,46 @@ def test_parser_never_raises_on_any_input():
             assert encode(msg)[:2] == b"\x55\x0e"
     assert parser.feed(b"") == []
     assert parser.stats.bytes_skipped > 0 and parser.stats.bad_checksums > 0
+
+
+def _fake_frame(rng: random.Random) -> bytes:
+    """``55 0E``, a random id and payload, and a checksum that matches: what the checksum cannot catch."""
+    payload = bytes(rng.getrandbits(8) for _ in range(8))
+    return bytes((0x55, 0x0E, rng.getrandbits(8), rng.getrandbits(8))) + payload + bytes((0, sum(payload) & 0xFF))
+
+
+def test_frames_with_an_unknown_id_or_implausible_values_are_rejected_and_counted():
+    """Noise with 1,000 fake frames whose checksums match, and 5,000 real frames: every real one
+    comes out, no fake one does (the checksum alone let about 5 in 1,000 through)."""
+    rng = random.Random(11)
+    real = [MotionState(0.3, -0.2, 0.0, 0.0), SystemState(0, 1, 12.2, 0, 0), WheelOdometry(1234, -567),
+            ImuGyro(0.0, 0.0, 28.6), ImuEuler(90.0, 1.0, -1.0), ImuAccel(0.1, 0.0, 9.81)]
+    stream, expected = bytearray(), []
+    for k in range(6000):
+        if k % 6 == 5:
+            stream += _fake_frame(rng)
+        else:
+            msg = real[k % len(real)]
+            stream += encode(msg)
+            expected.append(msg)
+        stream += bytes(rng.getrandbits(8) for _ in range(rng.randrange(0, 6)))
+    parser = FrameParser()
+    out = []
+    for start in range(0, len(stream), 61):
+        out += parser.feed(bytes(stream[start:start + 61]))
+    assert out == expected
+    stats = parser.stats
+    assert stats.unknown_ids > 900 and stats.frames == len(expected)
+    assert stats.rejected == stats.bad_checksums + stats.unknown_ids + stats.implausible
+
+
+@pytest.mark.parametrize("msg, why", [
+    (MotionState(12.0, 0.0, 0.0, 0.0), "MotionState.linear_mps 12"),
+    (SystemState(0, 1, 250.0, 0, 0), "battery_v 250"),
+    (SystemState(0, 9, 12.0, 0, 0), "control_mode 9"),
+    (ImuEuler(0.0, 200.0, 0.0), "ImuEuler"),
+])
+def test_an_implausible_frame_is_rejected_saying_why(msg, why):
+    parser = FrameParser()
+    assert parser.feed(encode(msg) + encode(WheelOdometry(1, 2))) == [WheelOdometry(1, 2)]
+    assert parser.stats.implausible == 1 and why in parser.stats.last_rejected

@@ -17,11 +17,12 @@ from core.configfile import ConfigError, load_config
 from core.hal import HalError, VelocityCommand, VelocityLimits
 from core.hal_check import check_base
 from limo.camera import CameraSource
+from limo.config import LimoSerialConfig
 from limo.emulated import EmulatedSerialLimo
 from limo.emulator.firmware import EmulatorConfig, EmulatorFaults, LimoEmulator
 from limo.monitor import main as monitor_main
 from limo.protocol import ID_ODOMETRY, ID_SYSTEM_STATE, SystemState, WheelOdometry, build_frame, encode
-from limo.serial_base import LimoSerialBase, LimoSerialConfig, describe_open_error
+from limo.serial_base import LimoSerialBase, describe_open_error
 from limo.state_estimate import StateEstimateConfig, StateEstimator
 from tests.waiting import wait_until
 
@@ -49,7 +50,7 @@ def test_config_loads_from_yaml_and_rejects_a_slow_command_rate(tmp_path):
     assert cfg.port == "/dev/ttyUSB0" and cfg.limits == VelocityLimits(0.3, 0.8)
     assert cfg.estimate.gyro_yaw_rate_std_radps == 0.05 and cfg.command_rate_hz == 50.0
     path.write_text("port: /dev/ttyUSB0\ncommand_rate_hz: 10\n")
-    with pytest.raises(ConfigError, match="command_rate_hz must be at least 20"):
+    with pytest.raises(ConfigError, match="command_rate_hz: must be at least 20"):
         load_config(LimoSerialConfig, path)
     with pytest.raises(ValueError, match="gyro_yaw_sign"):
         LimoSerialConfig(gyro_yaw_sign=2)
@@ -230,7 +231,9 @@ def test_a_noisy_link_loses_frames_but_not_the_odometry():
 
 def test_a_flipped_id_bit_neither_faults_nor_moves_the_odometry():
     # the checksum does not cover the id, and 0x211 / 0x311 differ by one bit: script exactly
-    # those corruptions onto a bare pseudo-terminal (faked at the byte boundary only)
+    # those corruptions onto a bare pseudo-terminal (faked at the byte boundary only). The odometry
+    # read as a system state has impossible modes and is rejected by the parser; the system state
+    # read as odometry is a plausible frame whose 65 m jump the backend ignores.
     master, slave = os.openpty()
     tty.setraw(slave)
     odo_as_system = build_frame(ID_SYSTEM_STATE, encode(WheelOdometry(-5, -3))[4:12])  # error bits 0xFFFF
@@ -242,8 +245,9 @@ def test_a_flipped_id_bit_neither_faults_nor_moves_the_odometry():
         with LimoSerialBase(LimoSerialConfig(port=os.ttyname(slave), connect_timeout_s=0.0)) as base:
             for n, frame in enumerate(script, start=1):
                 os.write(master, frame)
-                assert wait_until(lambda: base.link_stats().feedback_frames == n, 0.3)
+                assert wait_until(lambda: base.link_stats().feedback_frames + base.link_stats().implausible == n, 0.3)
                 assert base.read().fault is None, base.read().fault
+            assert base.link_stats().implausible == 1 and "SystemState" in base.link_stats().last_rejected
             odo = base.read().odometry
             assert odo.left_m == pytest.approx(0.010) and odo.x_m == pytest.approx(0.010)
             assert base.read().error_bits == 0
@@ -255,12 +259,15 @@ def test_a_flipped_id_bit_neither_faults_nor_moves_the_odometry():
 def test_severe_error_bits_are_a_fault_and_a_warning_is_not():
     with LimoEmulator(config=EmulatorConfig(error_bits=0x0010 | 0x0002, battery_v=10.4)) as emu:
         with LimoSerialBase(config_for(emu)) as base:
+            # an error bit counts once two system states (25 Hz) agree
+            assert wait_until(lambda: base.read().error_bits == 0x0012, 0.6)
             frame = base.read()
-            assert frame.error_bits == 0x0012 and frame.battery_v == pytest.approx(10.4)
+            assert frame.battery_v == pytest.approx(10.4)
             assert "motor driver 2" in frame.fault and "warning" not in frame.fault
     with LimoEmulator(config=EmulatorConfig(error_bits=0x0002)) as emu:
         with LimoSerialBase(config_for(emu)) as base:
-            assert base.read().fault is None and base.read().error_bits == 0x0002
+            assert wait_until(lambda: base.read().error_bits == 0x0002, 0.6)
+            assert base.read().fault is None
 
 
 def test_tick_keeps_the_control_period_without_catching_up(emulator):
@@ -359,5 +366,19 @@ def test_monitor_cli_prints_feedback_and_names_a_missing_port(emulator, capsys):
     out = capsys.readouterr().out
     assert "battery 12.2 V" in out and "wheels L +0.000" in out and "FAULT" not in out
     assert emulator.enabled and emulator.stats.motion_commands > 3 and emulator.commanded.is_zero
-    assert monitor_main(["--port", "/dev/ttyNOSUCHLIMO", "--seconds", "0.1"]) == 1
+    assert monitor_main(["--port", "/dev/ttyNOSUCHLIMO", "--seconds", "0.1"]) == 2      # cannot work: exit 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_monitor_exits_1_when_the_link_fails(emulator, capsys):
+    """The port vanishes while the monitor watches (the USB adapter is pulled): it says so and
+    exits 1 instead of printing stale values."""
+    timer = threading.Timer(0.4, emulator.stop)
+    timer.start()
+    try:
+        assert monitor_main(["--port", emulator.device_path, "--seconds", "5", "--every", "0.05"]) == 1
+    finally:
+        timer.cancel()
+    captured = capsys.readouterr()
+    assert "the link failed" in captured.err and "commanded to stop" in captured.err
+    assert "battery 12.2 V" in captured.out

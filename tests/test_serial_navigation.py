@@ -74,7 +74,11 @@ def _commands(lines: "queue.Queue[str]", timeout_s: float) -> list[tuple[float, 
     return out
 
 
-def test_ctrl_c_during_serial_navigation_leaves_the_base_at_zero(serial_setup):
+@pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)],
+                         ids=["ctrl-c", "sigterm", "sighup"])
+def test_a_signal_during_serial_navigation_leaves_the_base_at_zero(serial_setup, signum, status):
+    """Ctrl-C, SIGTERM (systemd, docker, kill) and SIGHUP (a closed terminal) all end through the
+    same cleanup: the last command on the wire is zero, before the firmware's own timeout."""
     root = serial_setup
     emu, port, lines = _start_emulator()
     try:
@@ -88,9 +92,9 @@ def test_ctrl_c_during_serial_navigation_leaves_the_base_at_zero(serial_setup):
             moving = any(abs(v) > 0.01 or abs(w) > 0.01 for v, w in _commands(lines, 0.5))
             assert nav.poll() is None, nav.communicate()[1]
         assert moving, "the navigation never commanded motion over the serial link"
-        nav.send_signal(signal.SIGINT)
+        nav.send_signal(signum)
         _, err = nav.communicate(timeout=30)
-        assert nav.returncode == 130, err
+        assert nav.returncode == status, err
         assert "stopped" in err and "Traceback" not in err
         # the emulator's commanded velocity is zero right after the CLI exits (before its own watchdog)
         while not lines.empty():                                  # status from before the exit
@@ -102,14 +106,30 @@ def test_ctrl_c_during_serial_navigation_leaves_the_base_at_zero(serial_setup):
         emu.communicate(timeout=10)
 
 
-def test_serial_navigation_needs_a_port_and_a_goal(serial_setup):
+def test_serial_navigation_needs_a_port_that_exists_and_a_goal(serial_setup):
     root = serial_setup
     base = [sys.executable, "-m", "robot.run", "--mode", "navigate", "--hal", "serial", "--map",
             str(root / "run" / "map"), "--config", str(root / "tiny.yaml")]
     no_port = subprocess.run(base + ["--goal", "3"], capture_output=True, text=True, timeout=60)
-    assert no_port.returncode == 2 and "--port" in no_port.stderr
+    # without --port the config's serial.port is used: /dev/ttyTHS1, which this machine lacks
+    assert no_port.returncode == 2 and "/dev/ttyTHS1" in no_port.stderr and "does not exist" in no_port.stderr
     no_goal = subprocess.run(base + ["--port", "loop://"], capture_output=True, text=True, timeout=60)
     assert no_goal.returncode == 2 and "--goal" in no_goal.stderr
     bad_node = subprocess.run(base + ["--port", "loop://", "--goal", "999"], capture_output=True, text=True,
                               timeout=60)
     assert bad_node.returncode == 2 and "999" in bad_node.stderr and "Traceback" not in bad_node.stderr
+
+
+def test_serial_navigation_never_loads_the_simulator(serial_setup):
+    """--hal serial on the robot's own computer: the whole command up to opening the port (map,
+    descriptor, goal) without pybullet."""
+    root = serial_setup
+    code = ("import runpy, sys\n"
+            f"sys.argv = ['robot.run', '--mode', 'navigate', '--hal', 'serial', '--map', {str(root / 'run' / 'map')!r},"
+            f" '--goal', '3', '--config', {str(root / 'tiny.yaml')!r}, '--port', '/dev/ttyNOPE']\n"
+            "try:\n    runpy.run_module('robot.run', run_name='__main__')\n"
+            "except SystemExit as exc:\n    print('exit', exc.code)\n"
+            "print('pybullet' in sys.modules)\n")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.stdout.split() == ["exit", "2", "False"], (proc.stdout, proc.stderr)
+    assert "/dev/ttyNOPE" in proc.stderr

@@ -13,8 +13,8 @@ from core.angles import wrap_angle
 from core.hal import HalError, Pose2D, RobotBase, VelocityCommand
 from core.hal_check import check_base
 from limo.camera import CameraError
+from limo.config import LimoSerialConfig
 from limo.emulator.firmware import EmulatorConfig, EmulatorError
-from limo.serial_base import LimoSerialConfig
 from sim.config import CameraSpec, SimConfig
 from sim.hal import SimLimo
 from sim.serial_twin import PyBulletBaseModel, SerialTwinConfig, SerialTwinError, SerialTwinLimo, SimCameraSource

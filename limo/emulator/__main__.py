@@ -9,6 +9,8 @@ import sys
 import time
 from typing import Dict, List, Optional
 
+from core.cli import Parser, non_negative_float, non_negative_int, positive_float
+from core.shutdown import exit_status, interrupted_by, stop_on_signals
 from limo.emulator.firmware import EmulatorConfig, EmulatorError, EmulatorFaults, LimoEmulator
 from limo.emulator.models import MODELS
 
@@ -45,7 +47,7 @@ def _error_bits(text: str) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="python -m limo.emulator",
         description="Emulate an AgileX Limo base on a pseudo-terminal. Prints the device path; "
                     "point the serial backend at it (LimoSerialConfig(port=PATH)). Ctrl-C stops.")
@@ -55,19 +57,20 @@ def build_parser() -> argparse.ArgumentParser:
                         help="inject a fault, repeatable: flip-bits=P (fraction of feedback frames with "
                              "one flipped bit), drop-bytes=P (fraction with one byte removed), "
                              "freeze-at=S (freeze the link S seconds after start), freeze (from the start)")
-    parser.add_argument("--battery-v", type=float, default=12.2, help="battery voltage to report (V)")
+    parser.add_argument("--battery-v", type=non_negative_float, default=12.2, help="battery voltage to report (V)")
     parser.add_argument("--error-bits", type=_error_bits, default=0,
                         help="error bits to report in 0x211, e.g. 0x0002 (battery warning)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the fault injection")
-    parser.add_argument("--duration", type=float, default=None,
+    parser.add_argument("--seed", type=non_negative_int, default=0, help="seed of the fault injection")
+    parser.add_argument("--duration", type=positive_float, default=None,
                         help="stop after this many seconds (default: run until Ctrl-C)")
-    parser.add_argument("--status-every", type=float, default=0.0,
+    parser.add_argument("--status-every", type=non_negative_float, default=0.0,
                         help="print commanded/actual velocity and pose every N seconds (0: never)")
     return parser
 
 
 def main(argv: Optional[List[str]] = None) -> int:
     args = build_parser().parse_args(argv)
+    stop_on_signals()
     try:
         specs: Dict[str, float] = {}
         for text in args.fault:
@@ -99,8 +102,9 @@ def main(argv: Optional[List[str]] = None) -> int:
                 print(f"cmd v={cmd.v_mps:+.3f} w={cmd.w_radps:+.3f}  actual v={act.v_mps:+.3f} "
                       f"w={act.w_radps:+.3f}  pose x={pose.x_m:+.3f} y={pose.y_m:+.3f} "
                       f"yaw={pose.yaw_rad:+.3f}", file=sys.stderr, flush=True)
-    except KeyboardInterrupt:
-        pass
+    except KeyboardInterrupt as exc:
+        print(f"limo.emulator: {interrupted_by(exc)}", file=sys.stderr)
+        return exit_status(exc)
     finally:
         emulator.stop()
     return 0

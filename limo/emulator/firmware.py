@@ -2,8 +2,9 @@
 
 The emulator plays the base's firmware: it opens a pty pair, keeps the master side, and offers
 the slave path (``/dev/pts/N``) to the host. After a control-mode frame (0x421) it applies motion
-commands (0x111) to a :class:`BaseModel`; it sends feedback at ``feedback_rate_hz`` (system state
-0x211, motion state 0x221, odometry 0x311 in mm, IMU 0x321/0x322/0x323) whether enabled or not,
+commands (0x111) to a :class:`BaseModel`; it sends feedback whether enabled or not, each message
+in its own frame on its own schedule: motion state 0x221, odometry 0x311 (mm) and IMU
+0x321/0x322/0x323 at ``feedback_rate_hz`` spread over the period, system state 0x211 at half of it,
 and it stops by itself when no command arrived for ``command_timeout_s``, as the firmware's own
 watchdog is assumed to do.
 
@@ -135,7 +136,8 @@ class LimoEmulator:
         self._command = VelocityCommand()
         self._last_command_s = -math.inf
         self._counts = dict(frames=0, motion=0, enable=0, sent=0, lost=0)
-        self._out = bytearray()  # feedback waiting for room in the pty buffer
+        self._out = bytearray()          # the rest of a frame waiting for room in the pty buffer
+        self._pending: List[bytes] = []  # frames queued by _send, written one per write
 
     # -- life cycle -------------------------------------------------------------------------
 
@@ -241,25 +243,45 @@ class LimoEmulator:
     # -- firmware loop ---------------------------------------------------------------------
 
     def _run(self) -> None:
+        """Step the model at ``feedback_rate_hz``; send each feedback message on its own schedule
+        (:meth:`_schedule`), one frame per write, as the firmware does: a host that reads a couple
+        of frames at a time (AgileX's pylimo reads 28 bytes and parses the first frame) still sees
+        every kind of message."""
         period = 1.0 / self.config.feedback_rate_hz
         last = time.monotonic()
-        next_feedback = last + period
+        next_step = last + period
+        schedule = self._schedule(last)
         while not self._stop.is_set():
-            timeout = max(0.0, next_feedback - time.monotonic())
+            due = min(next_step, min(t for t, _, _ in schedule))
             try:
-                readable, _, _ = select.select([self._master], [], [], timeout)
+                readable, _, _ = select.select([self._master], [], [], max(0.0, due - time.monotonic()))
             except (OSError, ValueError):
                 return
             if readable:
                 self._receive()
             now = time.monotonic()
-            if now >= next_feedback:
+            if now >= next_step:
                 self._advance(now, min(now - last, self.config.max_step_s))  # a stall must not teleport the base
                 last = now
-                next_feedback += period
-                if next_feedback < now:  # fell behind (busy machine): do not burst to catch up
-                    next_feedback = now + period
+                next_step += period
+                if next_step < now:  # fell behind (busy machine): do not burst to catch up
+                    next_step = now + period
+            for k, (t, every, kind) in enumerate(schedule):
+                if now >= t:
+                    self._send(kind)
+                    schedule[k] = (max(t + every, now), every, kind)
             self._flush()
+
+    def _schedule(self, start: float) -> List[tuple]:
+        """(next due time, period, message kind) per feedback message: motion state, odometry and
+        the three IMU messages at ``feedback_rate_hz``, spread evenly over each period with the
+        motion state first; the system state at half the rate, between them. Eleven frames per
+        two periods: a reader that keeps every other frame (pylimo) sees each kind in turn."""
+        period = 1.0 / self.config.feedback_rate_hz
+        fast = ("motion", "odometry", "accel", "gyro", "euler")
+        out = [(start + period * k / len(fast), period, kind) for k, kind in enumerate(fast)]
+        out.append((start + period / (2 * len(fast)), 2 * period, "system"))
+        return out
 
     def _receive(self) -> None:
         try:
@@ -293,41 +315,51 @@ class LimoEmulator:
         state = self._model.step(dt_s, cmd.v_mps, cmd.w_radps)
         with self._lock:
             self._state = state
-            faults = self._faults
+
+    def _send(self, kind: str) -> None:
+        """Queue one feedback frame of ``kind`` from the current state (faults applied)."""
+        with self._lock:
+            faults, s = self._faults, self._state
             if faults.frozen:
                 return
-            for msg in self._feedback(state):
-                frame = bytearray(encode(msg))
-                if faults.flip_bit_prob and self._rng.random() < faults.flip_bit_prob:
-                    frame[self._rng.randrange(len(frame))] ^= 1 << self._rng.randrange(8)
-                if faults.drop_byte_prob and self._rng.random() < faults.drop_byte_prob:
-                    del frame[self._rng.randrange(len(frame))]
-                self._out += frame
-                self._counts["sent"] += 1
-
-    def _feedback(self, s: BaseState) -> List[object]:
-        return [
-            SystemState(vehicle_state=0, control_mode=1 if self._enabled else 0,
-                        battery_v=self.config.battery_v, error_bits=self.config.error_bits, motion_mode=0),
-            MotionState(s.v_mps, s.w_radps, 0.0, 0.0),
-            WheelOdometry(int(round(s.left_m * 1000)), int(round(s.right_m * 1000))),
-            ImuAccel(s.accel_mps2, s.v_mps * s.w_radps, 9.81),
-            ImuGyro(0.0, 0.0, math.degrees(s.w_radps)),
-            ImuEuler(math.degrees(s.yaw_rad), 0.0, 0.0),
-        ]
+            if kind == "system":
+                msg = SystemState(vehicle_state=0, control_mode=1 if self._enabled else 0,
+                                  battery_v=self.config.battery_v, error_bits=self.config.error_bits,
+                                  motion_mode=0)
+            elif kind == "motion":
+                msg = MotionState(s.v_mps, s.w_radps, 0.0, 0.0)
+            elif kind == "odometry":
+                msg = WheelOdometry(int(round(s.left_m * 1000)), int(round(s.right_m * 1000)))
+            elif kind == "accel":
+                msg = ImuAccel(s.accel_mps2, s.v_mps * s.w_radps, 9.81)
+            elif kind == "gyro":
+                msg = ImuGyro(0.0, 0.0, math.degrees(s.w_radps))
+            else:
+                msg = ImuEuler(math.degrees(s.yaw_rad), 0.0, 0.0)
+            frame = bytearray(encode(msg))
+            if faults.flip_bit_prob and self._rng.random() < faults.flip_bit_prob:
+                frame[self._rng.randrange(len(frame))] ^= 1 << self._rng.randrange(8)
+            if faults.drop_byte_prob and self._rng.random() < faults.drop_byte_prob:
+                del frame[self._rng.randrange(len(frame))]
+            self._pending.append(bytes(frame))
+            self._counts["sent"] += 1
 
     def _flush(self) -> None:
-        if not self._out:
-            return
-        try:
-            written = os.write(self._master, bytes(self._out))
-        except BlockingIOError:
-            written = 0
-        except OSError:
-            return
-        del self._out[:written]
+        """Write the queued frames, each with its own write (as a UART sends them one by one)."""
+        while self._pending or self._out:
+            if not self._out:
+                self._out += self._pending.pop(0)
+            try:
+                written = os.write(self._master, bytes(self._out))
+            except BlockingIOError:
+                written = 0
+            except OSError:
+                return
+            del self._out[:written]
+            if self._out:                       # the pty buffer is full: the host is not reading
+                break
         # a host that does not read would make this grow forever; a UART would overrun instead
-        if len(self._out) > 4096:
+        if len(self._pending) > 300:
             with self._lock:
-                self._counts["lost"] += len(self._out) // 14
-            self._out.clear()
+                self._counts["lost"] += len(self._pending)
+            self._pending.clear()

@@ -7,9 +7,11 @@ dependencies never slow another down.
 
 from __future__ import annotations
 
-import argparse
 import importlib
 import sys
+
+from core.cli import Parser
+from core.shutdown import exit_status, interrupted_by, stop_on_signals
 
 COMMANDS = {
     "sim": ("robot.bench.sim", "time one control step of the simulated Limo: physics and render"),
@@ -26,7 +28,7 @@ def main(argv: list[str] | None = None) -> int:
 
     limit_helper_threads()
     argv = sys.argv[1:] if argv is None else argv
-    parser = argparse.ArgumentParser(prog="python -m robot.bench", description=__doc__.splitlines()[0])
+    parser = Parser(prog="python -m robot.bench", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         sub.add_parser(name, help=help_text, add_help=False)
@@ -37,9 +39,15 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         return 0
     module = importlib.import_module(COMMANDS[argv[0]][0])
-    cmd_parser = argparse.ArgumentParser(prog=f"python -m robot.bench {argv[0]}", description=COMMANDS[argv[0]][1])
+    cmd_parser = Parser(prog=f"python -m robot.bench {argv[0]}", description=COMMANDS[argv[0]][1])
     module.add_arguments(cmd_parser)
-    return int(module.main(cmd_parser.parse_args(argv[1:])) or 0)
+    args = cmd_parser.parse_args(argv[1:])
+    stop_on_signals()          # SIGTERM / SIGHUP end through the commands' Ctrl-C handling
+    try:
+        return int(module.main(args) or 0)
+    except KeyboardInterrupt as exc:     # a command without its own handling: one line, no traceback
+        print(f"python -m robot.bench {argv[0]}: {interrupted_by(exc)}", file=sys.stderr)
+        return exit_status(exc)
 
 
 if __name__ == "__main__":

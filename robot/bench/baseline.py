@@ -17,6 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from core.cli import UsageError, check_output_file, existing_folder
 from robot.baseline.pipeline import build_baseline, load_baseline, train_baseline
 
 EXIT_BAD_INPUT = 2
@@ -91,6 +92,13 @@ def main(args: argparse.Namespace) -> int:
     if args.threads < 1:
         print(f"error: --threads must be >= 1, got {args.threads}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    out = args.out if args.out is not None else Path("runs") / "baseline" / f"sptm-{Path(str(args.world)).stem}.pt"
+    try:       # before minutes of drives and training
+        existing_folder("--map", args.map, "map folder")
+        check_output_file("--out", out)
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_BAD_INPUT
     torch.set_num_threads(args.threads)
     try:
         exploration = ExplorationConfig(episodes=args.episodes, steps_per_episode=args.steps, epsilon=args.epsilon)
@@ -100,7 +108,6 @@ def main(args: argparse.Namespace) -> int:
     except _input_errors() as exc:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    out = args.out if args.out is not None else Path("runs") / "baseline" / f"sptm-{head.stats['world']}.pt"
     try:
         save_head(out, head)
     except OSError as exc:

@@ -38,6 +38,7 @@ from typing import Optional
 from tqdm import tqdm
 
 from core.atomic import write_json
+from core.shutdown import exit_status, interrupted_by
 from robot.bench.trials import (
     DEFAULT_METHODS,
     METHODS,
@@ -343,10 +344,10 @@ def main(args: argparse.Namespace) -> int:
     except PaperBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"interrupted: finished episodes are kept in {out / 'episodes'}; run the same command to resume, "
-              "or add --report-only for the report of those finished", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"{interrupted_by(exc)}: finished episodes are kept in {out / 'episodes'}; run the same command to "
+              "resume, or add --report-only for the report of those finished", file=sys.stderr)
+        return exit_status(exc)
     argv = sys.argv[2:] if sys.argv[1:2] == ["paper"] else sys.argv[1:]
     command = "python -m robot.bench paper " + " ".join(a for a in argv if a != "--report-only")
     written = write_report(out, [r for r in results[:len(plan)] if r], [r for r in results[len(plan):] if r],

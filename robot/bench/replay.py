@@ -23,6 +23,8 @@ from dataclasses import MISSING, fields, replace
 from pathlib import Path
 from typing import Optional
 
+from core.shutdown import exit_status, interrupted_by
+
 #: What must match for an episode to count as reproduced.
 COMPARED = ("steps", "end", "success", "final_distance_m", "relocalisations")
 
@@ -143,9 +145,9 @@ def main(args: argparse.Namespace) -> int:
     try:
         result = run_trial(trial, None if args.config is None else str(args.config), step_log=str(log),
                            video_path=None if args.video is None else str(args.video), progress=not args.quiet)
-    except KeyboardInterrupt:
-        print(f"interrupted: the steps made are in {log}", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"{interrupted_by(exc)}: the steps made are in {log}", file=sys.stderr)
+        return exit_status(exc)
     if args.events and log.is_file():
         lines = events(log)
         if len(lines) > args.events:

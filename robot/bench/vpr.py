@@ -53,6 +53,7 @@ import yaml
 from tqdm import tqdm
 
 from core.atomic import write_bytes, write_json
+from core.cli import UsageError, check_output_file, check_output_folder
 from core.hal import Pose2D
 from descriptors.base import DescriptorError
 from descriptors.factory import make_descriptor
@@ -489,16 +490,25 @@ def _task(args: argparse.Namespace) -> Task:
     if folders:
         if args.ref is None or args.query is None:
             raise VprInputError("image folders need both --ref and --query")
-        ref, query = image_folder(args.ref), image_folder(args.query)
+        ref, query = _named("--ref", image_folder, args.ref), _named("--query", image_folder, args.query)
         positives = frame_positives(len(query), len(ref), args.tolerance)
         match = {"mode": "frame index", "tolerance_frames": args.tolerance}
     else:
         if args.ref_recording is None or args.query_recording is None:
             raise VprInputError("recorded drives need both --ref-recording and --query-recording")
-        ref, query = recording_set(args.ref_recording), recording_set(args.query_recording)
+        ref = _named("--ref-recording", recording_set, args.ref_recording)
+        query = _named("--query-recording", recording_set, args.query_recording)
         positives = pose_positives(query.poses, ref.poses, args.tolerance_m, args.tolerance_deg)
         match = {"mode": "true pose", "tolerance_m": args.tolerance_m, "tolerance_deg": args.tolerance_deg}
     return Task(ref, query, positives, match)
+
+
+def _named(option: str, load, folder):
+    """``load(folder)``, its errors prefixed with the option that named the folder."""
+    try:
+        return load(folder)
+    except VprInputError as exc:
+        raise VprInputError(f"{option} {exc}") from None
 
 
 def _parse_seeds(text: str) -> list[int]:
@@ -566,6 +576,13 @@ def _ms(timing: Optional[Timing]) -> str:
 def run(args: argparse.Namespace) -> tuple[Task, list[BackendResult], Optional[dict]]:
     """Evaluate every backend of ``args``; the pieces :func:`main` prints."""
     specs = [parse_backend(b) for b in (args.backend or DEFAULT_BACKENDS)]
+    for spec in specs:        # an unknown backend or a bad setting is named before any work
+        make_descriptor(spec.name, **spec.settings)
+    try:
+        check_output_file("--json", args.json)
+        check_output_folder("--cache", args.cache)
+    except UsageError as exc:
+        raise VprInputError(str(exc)) from None
     seeds = _parse_seeds(args.vocab_seeds)
     size = _parse_size(args.timing_size)
     if args.timing_frames < 0 or args.threads < 1 or (args.cv2_threads is not None and args.cv2_threads < 0):

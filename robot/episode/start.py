@@ -8,6 +8,7 @@ from typing import Optional, Union
 
 from core.hal import Pose2D
 from maps.store import LoadedMap
+from sim.geometry import clearance_m
 from sim.world_spec import EvaluationRouteSpec, WorldSpec
 
 
@@ -56,6 +57,24 @@ def route_pose(xy_yaw_deg) -> Pose2D:
     return Pose2D(float(x), float(y), math.radians(float(yaw_deg)))
 
 
+#: a start pose must leave the Limo's body clear of walls and props (its half diagonal is 0.19 m)
+START_CLEARANCE_M = 0.2
+
+
+def check_free(world: WorldSpec, pose: Pose2D) -> None:
+    """Raise :class:`StartError` when ``pose`` lies off the world's floor or too close to a wall
+    or prop for the robot to stand there."""
+    (x0, y0), (sx, sy) = world.floor.origin_m, world.floor.size_m
+    where = f"--start {pose.x_m:g},{pose.y_m:g}"
+    if not (x0 <= pose.x_m <= x0 + sx and y0 <= pose.y_m <= y0 + sy):
+        raise StartError(f"{where}: off the floor of world {world.name!r} (x {x0:g}..{x0 + sx:g} m, "
+                         f"y {y0:g}..{y0 + sy:g} m)")
+    clearance, owners = clearance_m(world, [(pose.x_m, pose.y_m)])
+    if clearance[0] < START_CLEARANCE_M:
+        raise StartError(f"{where}: {clearance[0]:.2f} m from {owners[0]}; the robot needs "
+                         f"{START_CLEARANCE_M} m of free floor around it")
+
+
 def resolve_start(world: WorldSpec, loaded_map: LoadedMap, start: StartSpec,
                   route: Optional[str] = None) -> tuple[Pose2D, str]:
     """The start pose and a label for it; ``start`` None means the route's start."""
@@ -64,6 +83,7 @@ def resolve_start(world: WorldSpec, loaded_map: LoadedMap, start: StartSpec,
             raise StartError("no start: give --start (route name, x,y,yaw_deg or node:ID) or --route")
         return route_pose(route_of(world, route, "--route").start), f"start of route {route}"
     if isinstance(start, Pose2D):
+        check_free(world, start)
         return start, f"pose ({start.x_m:.2f}, {start.y_m:.2f}, {math.degrees(start.yaw_rad):.0f} deg)"
     if isinstance(start, int) and not isinstance(start, bool):
         if start not in loaded_map.topomap:

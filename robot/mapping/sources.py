@@ -15,6 +15,7 @@ from typing import Iterator, Optional
 import cv2
 import numpy as np
 
+from core.cli import quiet_video_decoder
 from core.hal import Pose2D
 from robot.mapping.recording import read_recording
 
@@ -122,6 +123,7 @@ class VideoSource:
         self.path = Path(path)
         if not self.path.is_file():
             raise FrameSourceError(f"{self.path}: no such video file")
+        quiet_video_decoder()
         cap = cv2.VideoCapture(str(self.path))
         try:
             if not cap.isOpened():
@@ -138,6 +140,7 @@ class VideoSource:
         return self._count
 
     def __iter__(self) -> Iterator[MapFrame]:
+        quiet_video_decoder()
         cap = cv2.VideoCapture(str(self.path))
         last, pos, kept = None, 0, 0
         try:
