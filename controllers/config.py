@@ -298,6 +298,36 @@ class ActionSpeeds:
 
 
 @dataclass(frozen=True)
+class BeliefConfig:
+    """The discrete Bayes filter over the map (:mod:`controllers.belief`)."""
+
+    #: length of a cell along a metric arc (the odometry resolution the motion update works in)
+    cell_m: float = 0.25
+    #: cells per arc on a map without metric arc lengths (from a video): node units
+    cells_per_arc: int = 1
+    #: each cell-length advance leaves this share of the mass where it was (slip, bumps) ...
+    stay: float = 0.1
+    #: ... and moves this share two cells (arcs a little shorter than measured)
+    skip: float = 0.1
+    #: share of the mass spread over every cell after each update, so that a robot carried
+    #: elsewhere (kidnapped) is found again; small, so that it does not drown the evidence
+    mixing: float = 0.002
+    #: the mode is trusted once this much mass lies within confidence_hops arcs of it
+    confidence: float = 0.6
+    confidence_hops: int = 1
+
+    def __post_init__(self) -> None:
+        check_positive("cell_m", self.cell_m)
+        check_count("cells_per_arc", self.cells_per_arc, 1)
+        for name in ("stay", "skip", "mixing"):
+            check_range(name, getattr(self, name), 0.0, 1.0, high_open=True)
+        if not self.stay + self.skip < 1.0:
+            raise ValueError(f"stay + skip must be below 1 (the rest advances one cell), got {self.stay + self.skip}")
+        check_range("confidence", self.confidence, 0.0, 1.0, low_open=True)
+        check_count("confidence_hops", self.confidence_hops, 0)
+
+
+@dataclass(frozen=True)
 class NavigationConfig:
     """Everything the navigator needs besides the map. Load from YAML with
     ``core.configfile.load_config(NavigationConfig, path)``; use :meth:`with_thresholds` to

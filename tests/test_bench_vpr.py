@@ -209,3 +209,51 @@ def test_bad_input_exits_2_naming_the_culprit(route, capsys, tmp_path):
     no_poses = _write_recording(tmp_path / "real_robot", [(n, None) for n in PHOTOS[:3]], 0, 1.0, with_poses=False)
     rc, _, err = _run(capsys, "--ref-recording", no_poses, "--query-recording", no_poses, "--backend", "tiny")
     assert rc == 2 and str(no_poses / "frames.csv") in err and "no true pose" in err
+
+
+def _noisy_route(n: int, dim: int, noise: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Reference descriptors of n places along a route (each place shares half its vector with the
+    next) and query descriptors of the same places under heavy noise; rows L2-normalised."""
+    rng = np.random.default_rng(seed)
+    base = rng.normal(size=(n + 1, dim))
+    ref = base[:-1] + 0.5 * base[1:]
+    query = ref + noise * rng.normal(size=ref.shape)
+    return (ref / np.linalg.norm(ref, axis=1, keepdims=True), query / np.linalg.norm(query, axis=1, keepdims=True))
+
+
+def test_the_belief_filter_recovers_a_route_that_single_images_miss():
+    from robot.bench.vpr import frame_positives, recall_at, sequence_modes, sequence_recall
+
+    ref, query = _noisy_route(120, 64, noise=5.0, seed=4)
+    positives = frame_positives(120, 120, 1)
+    single = recall_at(query @ ref.T, positives)[1]
+    in_order = sequence_recall(sequence_modes(query, ref), positives)
+    assert single < 0.5 and in_order > 0.85, (single, in_order)
+    # the gain comes from the order of the views: shuffled, the filter does worse than one look
+    order = np.random.default_rng(0).permutation(120)
+    shuffled = sequence_recall(sequence_modes(query[order], ref), positives[order])
+    assert shuffled < single, (shuffled, single)
+
+
+def _walk(folder: Path, shift_px: int, gain: float) -> Path:
+    """A route: 160 px wide crops every 24 px along a panorama of four photographs (neighbouring
+    views overlap, as a walk's frames do)."""
+    strip = np.hstack([cv2.resize(_place(n), (176, 132)) for n in PHOTOS[:4]])
+    views = [np.clip(strip[6:126, x:x + 160].astype(np.float32) * gain, 0, 255).astype(np.uint8)
+             for x in range(shift_px, strip.shape[1] - 160, 24)]
+    return _write_folder(folder, views)
+
+
+def test_sequence_flag_reports_the_filter_beside_single_images(route, capsys, tmp_path):
+    ref, query = _walk(tmp_path / "ref", 0, 1.0), _walk(tmp_path / "query", 6, 0.8)
+    out_json = tmp_path / "seq.json"
+    rc, out, err = _run(capsys, "--ref", ref, "--query", query, "--tolerance", 1,
+                        "--backend", "tiny", "--timing-frames", 0, "--sequence", "--json", out_json)
+    assert rc == 0, err
+    (tiny,) = _json(out_json)["backends"]
+    assert tiny["sequence_recall_at_1"] >= 0.9 and len(tiny["sequence_recall_at_1_per_seed"]) == 1
+    assert any("seq@1" in line for line in out.splitlines())
+    # fourteen unrelated photographs are no route: neighbours no more alike than strangers
+    rc, _, err = _run(capsys, "--ref", route["ref"], "--query", route["query"], "--tolerance", 0,
+                      "--backend", "tiny", "--timing-frames", 0, "--sequence")
+    assert rc == 2 and "--sequence needs references along a route" in err and len(err.splitlines()) == 1

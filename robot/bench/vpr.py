@@ -21,6 +21,14 @@ k-means seed and the mean recall is reported (with the range). Backends built on
 extractor (``effnet-vlad``, ``effnet-gap``, ``anyloc-dinov2``) extract local features once per
 image set and extractor settings; ``--cache DIR`` keeps them on disk between runs.
 
+With ``--sequence`` every backend is also scored as the robot uses it: the belief filter of
+:mod:`controllers.belief` runs over the query images in order, against the reference images as
+a chain of places (one place per image, the step model in images: each query image moves one
+place, ``stay`` / ``skip`` absorb a different pace), its likelihood fitted on the reference
+images alone; ``seq@1`` is the fraction of queries whose filter mode, at that query and with no
+look ahead, is a correct reference. Single-image recall uses one view; the filter uses every view
+so far and the order they came in.
+
 Speed is timed separately, at batch 1, on query frames resized to ``--timing-size`` (the
 robot camera's 320x240 by default) with ``--threads`` inference threads: ``describe`` of one frame,
 and ``describe_thirds`` (the frame and its Left / Middle / Right thirds, what a control step
@@ -48,10 +56,13 @@ from pathlib import Path
 from typing import Optional, Sequence
 
 import cv2
+import networkx as nx
 import numpy as np
 import yaml
 from tqdm import tqdm
 
+from controllers.belief import LikelihoodError, NodeBelief, SimilarityModel
+from controllers.config import BeliefConfig
 from core.atomic import write_bytes, write_json
 from core.cli import UsageError, check_output_file, check_output_folder
 from core.hal import Pose2D
@@ -323,6 +334,7 @@ class BackendResult:
     recall: dict[int, float]     # mean over vocabulary seeds
     recall_per_seed: dict[int, list[float]]
     seeds: list[int]             # [] when the backend has no vocabulary
+    sequence_per_seed: list[float] = field(default_factory=list)   # seq@1 per seed (--sequence)
     describe: Optional[Timing] = None          # describe() of one frame
     describe_thirds: Optional[Timing] = None   # describe_thirds() of one frame: full view + 3 thirds
 
@@ -337,6 +349,9 @@ class BackendResult:
         for k in sorted(self.recall):
             out[f"recall_at_{k}"] = round(self.recall[k], 4)
             out[f"recall_at_{k}_per_seed"] = [round(v, 4) for v in self.recall_per_seed[k]]
+        if self.sequence_per_seed:
+            out["sequence_recall_at_1"] = round(float(np.mean(self.sequence_per_seed)), 4)
+            out["sequence_recall_at_1_per_seed"] = [round(v, 4) for v in self.sequence_per_seed]
         return out
 
 
@@ -358,21 +373,52 @@ def _seed_of(descriptor) -> Optional[int]:
     return getattr(descriptor, "settings", {}).get("seed") if descriptor.needs_fit else None
 
 
+def sequence_modes(query_desc: np.ndarray, ref_desc: np.ndarray, config: BeliefConfig = BeliefConfig()) -> np.ndarray:
+    """The belief filter's mode (a reference index) after each query image, in query order."""
+    n = ref_desc.shape[0]
+    if n < 7:
+        raise VprInputError(f"--sequence needs at least 7 reference images to fit its likelihood, got {n}")
+    chain = nx.path_graph(n, create_using=nx.DiGraph)
+    try:
+        model = SimilarityModel.from_references(ref_desc, chain, range(n), same_hops=1, far_hops=min(4, n // 2 - 1))
+    except LikelihoodError as exc:
+        raise VprInputError(f"--sequence needs references along a route: {exc}") from None
+    belief = NodeBelief(chain, range(n), model, config=config, weight=1.0)
+    modes = np.empty(query_desc.shape[0], dtype=np.int64)
+    for i, row in enumerate(query_desc @ ref_desc.T):
+        if i:
+            belief.move(1.0)
+        belief.observe(row)
+        modes[i] = belief.mode
+    return modes
+
+
+def sequence_recall(modes: np.ndarray, positives: np.ndarray) -> float:
+    """Fraction of queries (with a correct reference) whose filter mode is correct."""
+    has_match = positives.any(axis=1)
+    return float(positives[np.arange(len(modes)), modes][has_match].mean())
+
+
 def evaluate_backend(spec: BackendSpec, ref: ImageSet, query: ImageSet, positives: np.ndarray,
-                     seeds: Sequence[int], store: FeatureStore, progress: bool = True) -> tuple[BackendResult, object]:
-    """Recall of one backend (mean over seeds); returns the result and a fitted descriptor."""
+                     seeds: Sequence[int], store: FeatureStore, progress: bool = True,
+                     sequence: bool = False) -> tuple[BackendResult, object]:
+    """Recall of one backend (mean over seeds), and with ``sequence`` the belief filter's;
+    returns the result and a fitted descriptor."""
     variants = build_variants(spec, seeds)
     fit_seeds = [_seed_of(d) for d in variants if d.needs_fit]
     per_seed: dict[int, list[float]] = {k: [] for k in RECALL_KS}
+    sequence_per_seed: list[float] = []
     for descriptor in variants:
         ref_desc, query_desc = _descriptors(descriptor, ref, query, store, progress)
         for k, v in recall_at(query_desc @ ref_desc.T, positives).items():
             per_seed[k].append(v)
+        if sequence:
+            sequence_per_seed.append(sequence_recall(sequence_modes(query_desc, ref_desc), positives))
     first = variants[0]
     result = BackendResult(
         label=spec.label, backend=spec.name, settings=dict(first.identity.settings), dim=int(first.identity.dim),
         recall={k: float(np.mean(v)) for k, v in per_seed.items()}, recall_per_seed=per_seed,
-        seeds=[int(s) for s in fit_seeds if s is not None])
+        seeds=[int(s) for s in fit_seeds if s is not None], sequence_per_seed=sequence_per_seed)
     return result, first
 
 
@@ -456,6 +502,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "'anyloc-dinov2:weights=PATH' (default: effnet-vlad and the effnet-gap baseline)")
     g.add_argument("--vocab-seeds", default="0", metavar="LIST",
                    help="k-means seeds of VLAD vocabularies, comma-separated; recall is their mean (default 0)")
+    g.add_argument("--sequence", action="store_true",
+                   help="also score the belief filter over the query sequence (seq@1, see the top of this module)")
     g.add_argument("--json", type=Path, metavar="PATH", help="also write the numbers as JSON here")
     g.add_argument("--cache", type=Path, metavar="DIR",
                    help="keep extracted local features here and reuse them on later runs")
@@ -552,18 +600,26 @@ def _header(task: Task, seeds: list[int], timing: Optional[dict]) -> list[str]:
 def format_table(results: Sequence[BackendResult]) -> str:
     """The per-backend table: recall@1, recall@5 (with the range over seeds), ms, size."""
     width = max([len("backend")] + [len(r.label) for r in results])
-    head = (f"{'backend':<{width}}  {'recall@1':<19}  {'recall@5':<19}  {'describe ms':>13}  "
-            f"{'thirds ms':>13}  {'dim':>6}  {'bytes':>7}")
+    sequence = any(r.sequence_per_seed for r in results)
+    head = (f"{'backend':<{width}}  {'recall@1':<19}  {'recall@5':<19}  " + (f"{'seq@1':<19}  " if sequence else "")
+            + f"{'describe ms':>13}  {'thirds ms':>13}  {'dim':>6}  {'bytes':>7}")
     rows = [head, "-" * len(head)]
     for r in results:
-        rows.append(f"{r.label:<{width}}  {_recall_text(r, 1):<19}  {_recall_text(r, 5):<19}  "
+        seq = f"{_range_text(r.sequence_per_seed):<19}  " if sequence else ""
+        rows.append(f"{r.label:<{width}}  {_recall_text(r, 1):<19}  {_recall_text(r, 5):<19}  {seq}"
                     f"{_ms(r.describe):>13}  {_ms(r.describe_thirds):>13}  {r.dim:>6}  {r.bytes:>7}")
     return "\n".join(rows)
 
 
 def _recall_text(r: BackendResult, k: int) -> str:
-    values = r.recall_per_seed[k]
-    text = f"{r.recall[k]:.3f}"
+    return _range_text(r.recall_per_seed[k])
+
+
+def _range_text(values: Sequence[float]) -> str:
+    """The mean, and the range over seeds when there are several."""
+    if not values:
+        return "-"
+    text = f"{float(np.mean(values)):.3f}"
     if len(values) > 1:
         text += f" ({min(values):.3f}-{max(values):.3f})"
     return text
@@ -602,7 +658,8 @@ def run(args: argparse.Namespace) -> tuple[Task, list[BackendResult], Optional[d
                "cv2_threads": cv2.getNumThreads()} if frames else None)
     results = []
     for spec in tqdm(specs, desc="backends", unit="backend", disable=not progress or len(specs) < 2):
-        result, fitted = evaluate_backend(spec, task.ref, task.query, task.positives, seeds, store, progress)
+        result, fitted = evaluate_backend(spec, task.ref, task.query, task.positives, seeds, store, progress,
+                                          sequence=args.sequence)
         if frames:
             result = replace(result, describe=time_batch1(fitted.describe, frames),
                              describe_thirds=time_batch1(fitted.describe_thirds, frames))
