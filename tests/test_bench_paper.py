@@ -261,6 +261,35 @@ def test_replay_reproduces_an_episode_with_a_step_log(serial_run, tmp_path, caps
     assert (tmp_path / "run" / "replays" / (episode.stem + ".steps.jsonl")).is_file()   # the default log
 
 
+def test_a_run_folder_replays_elsewhere_and_rebuilds_a_missing_map(serial_run, tmp_path, capsys):
+    """Episode files name their map relative to the run folder; a copy of the episodes alone (a
+    committed run, a fresh clone) replays by building the map again, the same map, the same episode."""
+    import shutil
+
+    out, _ = serial_run
+    episode = next((out / "episodes").glob("*_ours_0.json"))
+    trial = json.loads(episode.read_text())["trial"]
+    assert trial["map_dir"] == "maps/tiny-s0.5" and not Path(trial["trace_png"] or "x").is_absolute()
+    moved = tmp_path / "moved"
+    shutil.copytree(out / "episodes", moved / "episodes")
+    replay, args = _replay_args(moved / "episodes" / episode.name, "--quiet", "--events", "0")
+    assert replay.main(args) == 0
+    captured = capsys.readouterr()
+    assert "building it again" in captured.err and "reproduced" in captured.out and "NOT" not in captured.out
+    assert (moved / "maps" / "tiny-s0.5" / "manifest.json").is_file()
+    original = json.loads((out / "maps" / "tiny-s0.5" / "manifest.json").read_text())
+    rebuilt = json.loads((moved / "maps" / "tiny-s0.5" / "manifest.json").read_text())
+    assert rebuilt["files"] == original["files"]          # byte-identical contents (per-file digests)
+    # a map that is missing and not one the harness builds is named, exit 2
+    odd = json.loads(episode.read_text())
+    odd["trial"]["map_dir"] = "/nowhere/custom-map"
+    (moved / "episodes" / "odd.json").write_text(json.dumps(odd))
+    replay, args = _replay_args(moved / "episodes" / "odd.json", "--quiet")
+    assert replay.main(args) == 2
+    err = capsys.readouterr().err
+    assert "/nowhere/custom-map is missing" in err and len(err.strip().splitlines()) == 1
+
+
 @pytest.mark.parametrize("make, message", [
     (lambda d, out: d / "missing.json", "cannot read"),
     (lambda d, out: out / "results.json", "not an episode file"),

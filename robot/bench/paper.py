@@ -46,6 +46,7 @@ from robot.bench.trials import (
     config_digest,
     episode_path,
     plan_trials,
+    portable_trial,
     run_trial,
     step_log_path,
     worker_init,
@@ -198,7 +199,9 @@ def _reusable(out: Path, trial: Trial) -> Optional[dict]:
         done = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, json.JSONDecodeError):
         return None
-    return done if done.get("trial") == asdict(trial) else None
+    if done.get("trial") not in (asdict(trial), portable_trial(asdict(trial), out)):
+        return None
+    return {**done, "trial": asdict(trial)}
 
 
 def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Optional[str],
@@ -224,7 +227,7 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
 
     def finish(i: int, result: dict) -> None:
         results[i] = result
-        write_json(episode_path(out, trials[i]), result)
+        write_json(episode_path(out, trials[i]), {**result, "trial": portable_trial(result["trial"], out)})
         m = result["metrics"]
         bar.set_postfix_str(f"{trials[i].key}: {'ok' if m['success'] else 'FAIL'}", refresh=False)
         bar.update(1)

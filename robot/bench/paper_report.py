@@ -14,6 +14,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from core.atomic import save_figure, write_text
+from robot.bench.trials import portable_trial
 
 #: The paper's success rates (Table "Comparison of Success Rates"), keyed by our routes.
 PAPER_COLUMNS = {("hospital", "easy"): "Easy 10 m", ("hospital", "moderate"): "Moderate 20 m",
@@ -65,18 +66,6 @@ def _map_info(map_dir: Path) -> dict:
             "loop_closures": len(extra.get("loop_closures", []))}
 
 
-def _relative_paths(trial: dict, out: Path) -> dict:
-    """The trial with its map and trace paths relative to ``out`` (results.json travels)."""
-    fixed = dict(trial)
-    for key in ("map_dir", "trace_png", "baseline_path"):
-        if fixed.get(key):
-            try:
-                fixed[key] = str(Path(fixed[key]).resolve().relative_to(out.resolve()))
-            except ValueError:
-                pass
-    return fixed
-
-
 def _cell(s: dict) -> str:
     return f"{s['success_rate']:.2f} ({s['spl']:.2f})" if s["trials"] else "-"
 
@@ -116,14 +105,14 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
                        and e["trial"]["method"] == "ours"][:sparsity_trials]
             if eps:
                 info = _map_info(Path(eps[0]["trial"]["map_dir"]))
-                info["dir"] = _relative_paths({"map_dir": info["dir"]}, out)["map_dir"]
+                info["dir"] = portable_trial({"map_dir": info["dir"]}, out)["map_dir"]
                 sparsity[f"{level:g}"] = {"map": info,
                                           **summarise_episodes(eps)}
 
-    deterministic = [{"trial": _relative_paths(e["trial"], out), "goal_rivals": e.get("goal_rivals", []),
+    deterministic = [{"trial": portable_trial(e["trial"], out), "goal_rivals": e.get("goal_rivals", []),
                       **{k: e[k] for k in ("metrics", "goal_node", "trajectory")}} for e in [*main, *study]]
     results = {"command": command, "seed": seed, "success_radius_m": 1.0,
-               "maps": {w: {**_map_info(Path(d)), "dir": _relative_paths({"map_dir": str(d)}, out)["map_dir"]}
+               "maps": {w: {**_map_info(Path(d)), "dir": portable_trial({"map_dir": str(d)}, out)["map_dir"]}
                         for w, d in maps.items()},
                "summary": summary, "sparsity_route": sparsity_route, "sparsity": sparsity,
                **({"partial": partial} if partial else {}), "episodes": deterministic}

@@ -11,6 +11,11 @@ reached, lost, searching, ...) and whether the replay reproduced the recorded ep
 steps, end, success, final distance, re-localisations): the runs are deterministic, so a
 difference means the code or the configuration changed since.
 
+Episode files name their map relative to the run folder, so a run folder replays wherever it
+lies. A map that is not there (a committed run holds no maps) is built again into the run folder
+the way the harness built it; it reproduces the episode when the code that builds maps has not
+changed since.
+
 Exit status: 0 reproduced, 1 not reproduced, 2 bad input (the file named).
 """
 
@@ -18,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 from dataclasses import MISSING, fields, replace
 from pathlib import Path
@@ -47,7 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def load_episode(path: Path):
     """The :class:`robot.bench.trials.Trial` and the recorded metrics of an episode file."""
-    from robot.bench.trials import Trial
+    from robot.bench.trials import Trial, resolved_trial
 
     try:
         data = json.loads(Path(path).read_text(encoding="utf-8"))
@@ -62,16 +68,63 @@ def load_episode(path: Path):
     missing = [f.name for f in fields(Trial) if f.default is MISSING and f.name not in data["trial"]]
     if missing:
         raise ReplayError(f"{path}: trial field(s) {', '.join(missing)} missing")
+    run = Path(path).resolve().parent.parent
     try:
-        trial = Trial(**{k: v for k, v in data["trial"].items() if k in known})
+        trial = Trial(**{k: v for k, v in resolved_trial(data["trial"], run).items() if k in known})
     except TypeError as exc:
         raise ReplayError(f"{path}: bad trial ({exc})") from None
-    if not Path(trial.map_dir).is_dir():
-        raise ReplayError(f"{path}: the episode's map {trial.map_dir} is missing (was the run folder moved? "
-                          "episodes name their map by its absolute path)")
-    if trial.method == "sptm" and not (trial.baseline_path and Path(trial.baseline_path).is_file()):
-        raise ReplayError(f"{path}: the baseline head {trial.baseline_path} is missing")
     return trial, data["metrics"]
+
+
+def run_folder(episode: Path) -> Path:
+    """The run folder of an episode file (``RUN/episodes/<episode>.json``)."""
+    return Path(episode).resolve().parent.parent
+
+
+def locate_inputs(trial, run: Path, config, progress: bool):
+    """The trial with a map (and baseline head) that exist: as recorded; else the run folder's
+    ``maps/<name>`` (episodes of older runs name their map by an absolute path of the machine
+    that ran them); else the map built again, as the harness builds it (the world's walkthrough
+    under appearance 0, the configuration's mapping at the sparsity of the folder's name), into
+    the run folder. Returns the trial and notes for the user."""
+    from core.cli import UsageError, check_output_folder
+    from robot.bench.paper import ensure_map
+    from sim.world_spec import WorldError
+    from sim.worlds import load_world
+
+    notes = []
+    recorded = Path(trial.map_dir)
+    local = run / "maps" / recorded.name
+    if not (recorded / "manifest.json").is_file():
+        if not (local / "manifest.json").is_file():
+            try:
+                spec = load_world(trial.world)
+            except (WorldError, OSError) as exc:
+                raise ReplayError(f"the episode's map {trial.map_dir} is missing and its world cannot be loaded "
+                                  f"to build it again: {exc}") from None
+            match = re.fullmatch(rf"{re.escape(spec.name)}-s(\d+(?:\.\d+)?)", recorded.name)
+            if match is None:
+                raise ReplayError(f"the episode's map {trial.map_dir} is missing, and it is not a map the harness "
+                                  f"builds (<run>/maps/{spec.name}-s<sparsity>), so it cannot be built again")
+            try:
+                check_output_folder("the run folder's maps", run / "maps")
+            except UsageError as exc:
+                raise ReplayError(str(exc)) from None
+            print(f"note: the episode's map {trial.map_dir} is missing; building it again into {local} (the "
+                  f"walkthrough of {spec.name} under appearance 0, sparsity {match.group(1)}; a few minutes)",
+                  file=sys.stderr)
+            ensure_map(trial.world, float(match.group(1)), config, run, progress)
+            notes.append(f"map built again into {local}: a map made by other code than the episode's differs")
+        trial = replace(trial, map_dir=str(local))
+    if trial.method == "sptm":
+        head = Path(trial.baseline_path) if trial.baseline_path else None
+        if head is None or not head.is_file():
+            local_head = run / "baseline" / (head.name if head else "sptm_head.pt")
+            if not local_head.is_file():
+                raise ReplayError(f"the baseline head {trial.baseline_path} is missing (train it again with "
+                                  "python -m robot.bench paper --out RUN, or python -m robot.bench baseline)")
+            trial = replace(trial, baseline_path=str(local_head))
+    return trial, notes
 
 
 def differences(recorded: dict, replayed: dict) -> list[str]:
@@ -126,20 +179,26 @@ def main(args: argparse.Namespace) -> int:
     except ReplayError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    if trial.config_digest is not None:
-        from core.configfile import ConfigError
-        from robot.bench.trials import config_digest
-        from robot.settings import load_stack_config
+    from core.configfile import ConfigError
+    from robot.bench.trials import config_digest
+    from robot.settings import load_stack_config
 
-        try:
-            digest = config_digest(load_stack_config(args.config))
-        except ConfigError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+    try:
+        config = load_stack_config(args.config)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    if trial.config_digest is not None:
+        digest = config_digest(config)
         if digest != trial.config_digest:
             print(f"note: the configuration differs from the one the episode ran with (digest {digest}, recorded "
                   f"{trial.config_digest}); pass the run's --config to reproduce it", file=sys.stderr)
-    log = args.log or step_log_path(args.episode.resolve().parent.parent, trial)
+    try:
+        trial, notes = locate_inputs(trial, run_folder(args.episode), config, progress=not args.quiet)
+    except ReplayError as exc:
+        print(f"error: {args.episode}: {exc}", file=sys.stderr)
+        return 2
+    log = args.log or step_log_path(run_folder(args.episode), trial)
     trial = replace(trial, trace_png=None if args.trace is None else str(args.trace))
     worker_init()          # as the harness ran it: one torch / BLAS / OpenCV thread
     try:
@@ -165,8 +224,11 @@ def main(args: argparse.Namespace) -> int:
     if written:
         print(f"wrote {', '.join(written)}")
     diff = differences(recorded, m)
+    for note in notes:
+        print(f"note: {note}")
     if diff:
-        print(f"NOT reproduced ({'; '.join(diff)}): the code or the configuration changed since the episode ran")
+        print(f"NOT reproduced ({'; '.join(diff)}): the code, the configuration or the map changed since the "
+              "episode ran")
         return 1
     print("reproduced: the same steps, end and final distance as the recorded episode")
     return 0

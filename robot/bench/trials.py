@@ -78,6 +78,32 @@ def step_log_path(out: Path, trial: Trial) -> Path:
     return Path(out) / "replays" / (trial.key.replace("/", "_") + ".steps.jsonl")
 
 
+#: the trial fields that name files; an episode file stores them relative to its run folder
+PATH_FIELDS = ("map_dir", "trace_png", "baseline_path")
+
+
+def portable_trial(trial: dict, run: Path) -> dict:
+    """The trial (as a dict) with the paths inside the run folder ``run`` relative to it, so
+    that a run folder can move (or be committed) and still be replayed; other paths stay."""
+    fixed = dict(trial)
+    for key in PATH_FIELDS:
+        if fixed.get(key):
+            try:
+                fixed[key] = Path(fixed[key]).resolve().relative_to(Path(run).resolve()).as_posix()
+            except ValueError:
+                pass
+    return fixed
+
+
+def resolved_trial(trial: dict, run: Path) -> dict:
+    """The inverse of :func:`portable_trial`: relative paths joined to the run folder."""
+    fixed = dict(trial)
+    for key in PATH_FIELDS:
+        if fixed.get(key) and not Path(fixed[key]).is_absolute():
+            fixed[key] = str(Path(run) / fixed[key])
+    return fixed
+
+
 def config_digest(config) -> str:
     """A short fingerprint of a stack configuration's values (not of its file): episodes record it,
     so that a run with another configuration (another ``--config``, or an edited default) does not
