@@ -54,12 +54,13 @@ _EPS = 1e-12
 
 def contrast(row: np.ndarray) -> np.ndarray:
     """Similarities as contrast scores: minus the row's median, over its spread (1.4826 x the
-    median absolute deviation, the normal-consistent estimate). A global change of every cosine
-    (lighting) leaves them alike."""
+    median absolute deviation, the normal-consistent estimate), the spread at least a tenth of
+    the best score's lead over the median, so that no score exceeds 10 where most places score
+    alike. A global change of every cosine (lighting) leaves them alike."""
     row = np.asarray(row, dtype=float)
     centre = np.median(row)
-    spread = 1.4826 * np.median(np.abs(row - centre))
-    return (row - centre) / max(spread, 1e-6)
+    spread = max(1.4826 * float(np.median(np.abs(row - centre))), 0.1 * float(row.max() - centre), 1e-9)
+    return (row - centre) / spread
 
 
 class LikelihoodError(ValueError):
@@ -144,6 +145,20 @@ class SimilarityModel:
         return self.slope * (c - self.mean_other)
 
 
+@dataclass(frozen=True)
+class BeliefSnapshot:
+    """The belief at one step: the top nodes with their mass (the mode first), the mass within
+    ``confidence_hops`` of the mode, and the entropy over nodes."""
+
+    top: tuple[tuple[NodeId, float], ...]
+    confidence: float
+    entropy_bits: float
+
+    @property
+    def mode(self) -> NodeId:
+        return self.top[0][0]
+
+
 class NodeBelief:
     """The filter (see the module docstring). ``arc_lengths_m[(src, dst)]``: metric arc lengths
     (None: a map without odometry, every arc one unit). ``weight``: the exponent of the
@@ -159,7 +174,7 @@ class NodeBelief:
             raise ValueError("node_ids must name each map node once")
         self.config = config
         self.model = model
-        self.weight = float(weight)
+        self.weight = config.weight
         self.metric = arc_lengths_m is not None
         self.cell_m = config.cell_m if self.metric else 1.0 / config.cells_per_arc
         column = {n: k for k, n in enumerate(self.node_ids)}
@@ -257,6 +272,10 @@ class NodeBelief:
         nodes = self.node_probabilities
         order = np.argsort(-nodes, kind="stable")[:k]
         return [(self.node_ids[int(j)], float(nodes[j])) for j in order]
+
+    def snapshot(self, k: int = 3) -> "BeliefSnapshot":
+        """What a log shows of the belief now."""
+        return BeliefSnapshot(top=tuple(self.top(k)), confidence=self.confidence, entropy_bits=self.entropy_bits)
 
     # -- updates ----------------------------------------------------------------------------
 

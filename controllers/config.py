@@ -315,6 +315,9 @@ class BeliefConfig:
     #: the mode is trusted once this much mass lies within confidence_hops arcs of it
     confidence: float = 0.6
     confidence_hops: int = 1
+    #: the exponent of each view's likelihood: successive views are not independent evidence; at
+    #: 10 Hz and 0.25 m/s a camera looks about ten times per 0.25 m cell, so one look in ten counts
+    weight: float = 0.1
 
     def __post_init__(self) -> None:
         check_positive("cell_m", self.cell_m)
@@ -325,6 +328,7 @@ class BeliefConfig:
             raise ValueError(f"stay + skip must be below 1 (the rest advances one cell), got {self.stay + self.skip}")
         check_range("confidence", self.confidence, 0.0, 1.0, low_open=True)
         check_count("confidence_hops", self.confidence_hops, 0)
+        check_range("weight", self.weight, 0.0, 1.0, low_open=True)
 
 
 @dataclass(frozen=True)
@@ -339,6 +343,8 @@ class NavigationConfig:
     filter: SimilarityFilterConfig = field(default_factory=SimilarityFilterConfig)
     supervisor: SupervisorConfig = field(default_factory=SupervisorConfig)
     localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
+    #: the belief over the map; tracked and logged every step (it does not steer yet)
+    belief: BeliefConfig = field(default_factory=BeliefConfig)
     speeds: ActionSpeeds = field(default_factory=ActionSpeeds)
     #: The two-cycle voter executes on every second tick. True: the executed action is held
     #: through the next (storing) tick, i.e. each decision lasts one two-tick vote period

@@ -13,6 +13,7 @@ from controllers.config import BeliefConfig
 
 SPACING_M = 0.8
 MODEL = SimilarityModel(mean_same=3.0, mean_other=0.0, std=1.0)
+W3 = BeliefConfig(weight=0.3)
 
 
 def loop(n: int, spacing_m: float = SPACING_M) -> tuple[nx.DiGraph, dict]:
@@ -97,7 +98,7 @@ def test_the_likelihood_fits_on_a_maps_own_keyframes():
 
 def test_the_filter_follows_a_robot_driving_the_loop():
     graph, lengths = loop(20)
-    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, weight=0.3)
+    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, config=W3)
     views = Views(20)
     s = 2 * SPACING_M
     for _ in range(10):                                   # standing at node 2, looking
@@ -114,7 +115,7 @@ def test_a_corridor_alike_at_two_places_is_resolved_by_driving():
     mass splits; driving on past node 6, which has no twin, settles it."""
     graph, lengths = loop(20)
     twins = {2: 12, 3: 13, 4: 14, 5: 15}
-    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, weight=0.3)
+    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, config=W3)
     views = Views(20, twins=twins, seed=3)
     s = 3 * SPACING_M
     for _ in range(20):
@@ -129,7 +130,7 @@ def test_a_corridor_alike_at_two_places_is_resolved_by_driving():
 
 def test_a_kidnapped_robot_is_found_again():
     graph, lengths = loop(20)
-    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, weight=0.3)
+    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, config=W3)
     views = Views(20, seed=5)
     s = drive(belief, views, 1 * SPACING_M, 3.0)
     assert belief.mode == nearest(s, 20)
@@ -143,7 +144,7 @@ def test_noisy_odometry_does_not_make_the_belief_diverge(seed):
     """Odometry off by up to +-30 % every step (slip, a blocked wheel): over 60 m the mode never
     strays more than one node from the truth."""
     graph, lengths = loop(25)
-    belief = NodeBelief(graph, range(25), MODEL, arc_lengths_m=lengths, weight=0.3)
+    belief = NodeBelief(graph, range(25), MODEL, arc_lengths_m=lengths, config=W3)
     views = Views(25, seed=seed, noise=0.05)
     rng = np.random.default_rng(seed)
     s, worst = 0.0, 0
@@ -157,8 +158,7 @@ def test_noisy_odometry_does_not_make_the_belief_diverge(seed):
 def test_a_map_without_odometry_steps_in_node_units():
     """From a video: no metric arcs; each query frame moves about a node (a sequence of images)."""
     graph, _ = loop(12)
-    belief = NodeBelief(graph, range(12), MODEL, config=BeliefConfig(cells_per_arc=1, stay=0.2, skip=0.2),
-                        weight=0.5)
+    belief = NodeBelief(graph, range(12), MODEL, config=BeliefConfig(cells_per_arc=1, stay=0.2, skip=0.2, weight=0.5))
     assert not belief.metric and belief.n_cells == 12
     views = Views(12, twins={3: 9, 4: 10}, seed=7)
     for k in range(3, 9):
@@ -171,7 +171,7 @@ def test_a_map_without_odometry_steps_in_node_units():
 def test_bad_arguments_are_named():
     graph, lengths = loop(4)
     with pytest.raises(ValueError, match="weight"):
-        NodeBelief(graph, range(4), MODEL, weight=0.0)
+        BeliefConfig(weight=0.0)
     with pytest.raises(ValueError, match="node 3"):
         NodeBelief(graph, range(3), MODEL)
     belief = NodeBelief(graph, range(4), MODEL, arc_lengths_m=lengths)
@@ -200,9 +200,9 @@ def test_on_a_loop_the_filter_is_filterpys_discrete_bayes():
     ``exp(weight * log_ratio)``; the numpy version exists because a map's graph branches."""
     from filterpy import discrete_bayes
 
-    config = BeliefConfig(cells_per_arc=1, stay=0.15, skip=0.05, mixing=0.0)
+    config = BeliefConfig(cells_per_arc=1, stay=0.15, skip=0.05, mixing=0.0, weight=0.4)
     graph, _ = loop(9)
-    belief = NodeBelief(graph, range(9), MODEL, config=config, weight=0.4)
+    belief = NodeBelief(graph, range(9), MODEL, config=config)
     rng = np.random.default_rng(11)
     reference = rng.random(9)
     reference /= reference.sum()

@@ -52,7 +52,27 @@ def test_confirmations_wrong_places_and_lost_events():
     assert summary.endswith("first lost: step 5 at (1.5, 0.0), 1 -> 2")
     counts = confirmation_counts([d, diagnose(STEPS[:5], POSES)])
     assert counts == {"episodes": 2, "confirmations": 7, "wrong": 2, "localisations": 3, "wrong_localisations": 1,
+                      "belief_localisations": 0, "belief_wrong_localisations": 0, "belief_steps": 0,
+                      "belief_right": 0, "belief_confident": 0, "belief_confident_right": 0,
                       "median_distance_m": 0.2}
+    assert d.belief_summary() is None                       # a log without the belief
+
+
+def test_the_belief_in_the_log_is_judged_by_the_same_rule():
+    """The belief's mode at every step, and at each confirmation beside the navigator's node."""
+    tops = {2: [[0, 0.7]], 3: [[0, 0.5]], 4: [[1, 0.8]], 5: [[1, 0.9]], 6: [[1, 0.9]], 7: [[1, 0.65]],
+            8: [[2, 0.4]], 9: [[2, 0.3]], 10: [[3, 0.9]]}
+    steps = [{**s, "belief_top": tops.get(s["step"]), "belief_confidence": (tops.get(s["step"]) or [[0, None]])[0][1]}
+             for s in STEPS]
+    d = diagnose(steps, POSES)
+    assert [(c.belief_node, c.belief_wrong) for c in d.confirmations] == \
+        [(0, False), (1, False), (1, False), (2, False), (2, False)]
+    # every mode lies within a metre of the robot but step 10's (node 3, 7.5 m away, at 0.9 confidence)
+    assert (d.belief_steps, d.belief_right, d.belief_confident, d.belief_confident_right) == (9, 8, 6, 5)
+    assert d.belief_summary() == ("belief: mode at the right place at 8 of 9 steps; confident at 6, right at 5 of "
+                                  "them; at the 2 (re-)localisations the navigator was wrong at 1, the belief at 0")
+    counts = confirmation_counts([d])
+    assert counts["belief_localisations"] == 2 and counts["belief_wrong_localisations"] == 0
 
 
 def test_a_goal_image_placed_at_a_far_node_is_named_first():

@@ -124,6 +124,8 @@ def test_the_harness_writes_results_table_and_pictures(serial_run):
     ours_log = paper.step_log_path(out, paper.Trial(**main["trial"]))
     if m["steps"] > 0 and diagnose(read_step_log(ours_log), map_node_poses(out / main["trial"]["map_dir"])).confirmations:
         assert "## Place recognition in the loop (step logs)" in md and "| tiny_world short | ours | 1 |" in md
+        belief = md.split("The belief over the map")[1]
+        assert f"| tiny_world short | ours | {m['steps']} |" in belief       # judged at every step
 
 
 def test_parallel_workers_give_the_same_results_and_reruns_resume(serial_run, tmp_path):
@@ -208,7 +210,7 @@ def test_the_report_leaves_out_a_step_log_of_another_run(serial_run, capsys):
     ours_log = next(log for log in logs if "_ours_" in log.name)
     steps = [json.loads(line) for line in kept[ours_log].splitlines()]
     episode = json.loads(next((out / "episodes").glob("*_ours_0.json")).read_text())
-    found = diagnose(steps, map_node_poses(episode["trial"]["map_dir"]))
+    found = diagnose(steps, map_node_poses(out / episode["trial"]["map_dir"]))   # relative to the run
     right = next((c for c in found.confirmations if not c.is_wrong()), None)
     if right is not None:
         try:
@@ -308,13 +310,14 @@ def test_ours_with_turn_hints_turns_by_the_maps_odometry(serial_run, tmp_path):
     from dataclasses import replace as dc_replace
 
     from maps.store import load_map
-    from robot.bench.trials import Trial, run_trial
+    from robot.bench.trials import Trial, resolved_trial, run_trial
 
     out, _ = serial_run
     episode = json.loads(next((out / "episodes").glob("*_ours_0.json")).read_text())
     sx, sy, syaw = load_world(TINY).routes.evaluation["short"].start
     # under the map's own appearance from the route's start, so that it certainly drives
-    trial = dc_replace(Trial(**episode["trial"]), method="ours-hints", trace_png=None, appearance_seed=0,
+    trial = dc_replace(Trial(**resolved_trial(episode["trial"], out)), method="ours-hints", trace_png=None,
+                       appearance_seed=0,
                        start_x_m=sx, start_y_m=sy, start_yaw_deg=syaw)
     assert load_map(trial.map_dir).topomap.odom_headings is not None   # the harness's maps carry them
     log = tmp_path / "hints.jsonl"

@@ -247,7 +247,7 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
             lines.append(f"| {level} | {s['map']['nodes']} | {s['map']['mean_arc_length_m']} | "
                          f"{s['success_rate']:.2f} | {s['spl']:.2f} | {s['mean_relocalisations']:.2f} |")
     if diagnoses:
-        from robot.bench.diagnosis import FAR_M, NEAR_M, TURNED_DEG, confirmation_counts
+        from robot.bench.diagnosis import CONFIDENT, FAR_M, NEAR_M, TURNED_DEG, confirmation_counts
 
         lines += ["", "## Place recognition in the loop (step logs)", "",
                   "A confirmation is a node the navigator took as where the robot stood (localised at, or reached "
@@ -264,6 +264,19 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
             c = confirmation_counts(found)
             lines.append(f"| {label} | {method} | {c['episodes']} | {c['confirmations']} | {c['wrong']} | "
                          f"{c['localisations']} | {c['wrong_localisations']} | {c['median_distance_m']} |")
+        counted = {key: confirmation_counts(found) for key, found in groups.items()}
+        if any(c["belief_steps"] for c in counted.values()):
+            lines += ["", "The belief over the map (`controllers/belief.py`), judged by the same rule: its mode at "
+                      "every step, at the steps where its confidence reached "
+                      f"{CONFIDENT:g}, and at the navigator's (re-)localisations.", "",
+                      "| route | method | steps | mode right | confident | confident and right | "
+                      "(re-)localisations | navigator wrong | belief wrong |", "|---|---|---|---|---|---|---|---|---|"]
+            for (label, method), c in counted.items():
+                if c["belief_steps"]:
+                    lines.append(f"| {label} | {method} | {c['belief_steps']} | {c['belief_right']} | "
+                                 f"{c['belief_confident']} | {c['belief_confident_right']} | "
+                                 f"{c['belief_localisations']} | {c['wrong_localisations']} | "
+                                 f"{c['belief_wrong_localisations']} |")
     timed = [e["timing"] for e in episodes if e["timing"]["ms_per_step"]["total_ms"] > 0]
     if timed:
         keys = ("read_ms", "describe_ms", "decide_ms", "tick_ms", "total_ms")

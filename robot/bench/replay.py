@@ -4,8 +4,8 @@
 trial (world, map, start pose, appearance seed, method: everything is in the episode file) in
 this process the way the harness ran it (one torch thread), and writes what a trace picture
 cannot show: for every step the true pose, the navigator's state and action, the current and
-target node with their filtered scores, the thirds' scores, the node the raw view matched best
-and the navigator's reason (JSON lines, ``RUN/replays/<episode>.steps.jsonl`` by default;
+target node with their filtered scores, the thirds' scores, the node the raw view matched best,
+the navigator's reason and the belief over the map (top nodes with their mass, confidence, entropy) (JSON lines, ``RUN/replays/<episode>.steps.jsonl`` by default;
 ``--video`` adds the MP4 with overlays). It prints the episode's events (localised, node
 reached, lost, searching, ...) and whether the replay reproduced the recorded episode (same
 steps, end, success, final distance, re-localisations): the runs are deterministic, so a
@@ -165,8 +165,9 @@ def _diagnosis(log: Path, trial, goal_node) -> Optional[str]:
         d = diagnose(read_step_log(log), poses, goal)
     except (StepLogError, KeyError) as exc:
         return f"step log not diagnosed: {exc}"
-    return (f"step log: {len(d.confirmations)} nodes confirmed, {len(d.wrong)} at a wrong place; "
-            f"{d.summary()}")
+    text = f"step log: {len(d.confirmations)} nodes confirmed, {len(d.wrong)} at a wrong place; {d.summary()}"
+    belief = d.belief_summary()
+    return text if belief is None else f"{text}\n{belief}"
 
 
 def main(args: argparse.Namespace) -> int:
@@ -224,9 +225,9 @@ def main(args: argparse.Namespace) -> int:
     if written:
         print(f"wrote {', '.join(written)}")
     diff = differences(recorded, m)
-    for note in notes:
-        print(f"note: {note}")
     if diff:
+        for note in notes:
+            print(f"note: {note}")
         print(f"NOT reproduced ({'; '.join(diff)}): the code, the configuration or the map changed since the "
               "episode ran")
         return 1

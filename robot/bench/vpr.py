@@ -373,7 +373,11 @@ def _seed_of(descriptor) -> Optional[int]:
     return getattr(descriptor, "settings", {}).get("seed") if descriptor.needs_fit else None
 
 
-def sequence_modes(query_desc: np.ndarray, ref_desc: np.ndarray, config: BeliefConfig = BeliefConfig()) -> np.ndarray:
+#: the filter over an image sequence: each image a separate look (weight 1), one place per image
+SEQUENCE_BELIEF = BeliefConfig(weight=1.0)
+
+
+def sequence_modes(query_desc: np.ndarray, ref_desc: np.ndarray, config: BeliefConfig = SEQUENCE_BELIEF) -> np.ndarray:
     """The belief filter's mode (a reference index) after each query image, in query order."""
     n = ref_desc.shape[0]
     if n < 7:
@@ -383,7 +387,7 @@ def sequence_modes(query_desc: np.ndarray, ref_desc: np.ndarray, config: BeliefC
         model = SimilarityModel.from_references(ref_desc, chain, range(n), same_hops=1, far_hops=min(4, n // 2 - 1))
     except LikelihoodError as exc:
         raise VprInputError(f"--sequence needs references along a route: {exc}") from None
-    belief = NodeBelief(chain, range(n), model, config=config, weight=1.0)
+    belief = NodeBelief(chain, range(n), model, config=config)
     modes = np.empty(query_desc.shape[0], dtype=np.int64)
     for i, row in enumerate(query_desc @ ref_desc.T):
         if i:

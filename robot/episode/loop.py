@@ -6,6 +6,7 @@ HAL-agnostic: the same loop runs the simulated Limo and the serial Limo. Every c
     x = descriptor.describe_thirds([frame.rgb])[0]        # (4, D): full view, Left, Middle, Right
     row = node_descriptors @ x[0]                         # similarity to every node (one product)
     thirds = node_descriptors @ x[1:].T                   # (N, 3): every third against every node
+    belief.move(forward odometry); belief.observe(row)   # the belief over the map (logged, not steering)
     step = navigator.tick(row, thirds=thirds, thirds_contrast=contrast_thirds(thirds), heading_rad=yaw)
     base.apply(step.velocity); base.tick()
 
@@ -32,12 +33,14 @@ from typing import Callable, Optional, Protocol, Sequence
 import numpy as np
 
 from controllers.actions import Action
+from controllers.belief import BeliefSnapshot
 from controllers.config import NavigationConfig, Thresholds
 from controllers.navigator import NavigationStep, Navigator, NavState
 from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
 from descriptors.base import Descriptor
 from maps.graph import TopoMap
+from robot.episode.belief import ForwardTravel, map_belief
 
 
 @dataclass(frozen=True)
@@ -64,6 +67,7 @@ class StepRecord:
     applied: VelocityCommand      # what the base accepted after its limits
     similarities: np.ndarray      # raw similarity of the view to every node (row order node_ids)
     timing: StepTiming
+    belief: Optional[BeliefSnapshot] = None   # the belief over the map after this view (None: no belief)
 
 
 class EpisodeEnd(enum.Enum):
@@ -93,6 +97,7 @@ class EpisodeOutcome:
     replans: int
     thresholds: Thresholds
     timings: tuple[StepTiming, ...]
+    belief_setup: str = ""                      # how the belief over the map was set up, or why not
 
     @property
     def arrived(self) -> bool:
@@ -181,6 +186,9 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     navigator = Navigator(topomap.graph, node_ids, goal_node, config,
                           node_headings=topomap.odom_headings)
     heading = _Heading()
+    belief, belief_setup = map_belief(topomap, config.belief)
+    travel = ForwardTravel()
+    snapshot: Optional[BeliefSnapshot] = None
     timings: list[StepTiming] = []
     plans: list[tuple[int, ...]] = []
     first_stamp = last_stamp = None
@@ -207,6 +215,12 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             describe_ms = _ms(t0)
 
             t0 = time.perf_counter()
+            if belief is not None:
+                forward_m = travel.update(frame.odometry)
+                if belief.metric:
+                    belief.move(forward_m)
+                belief.observe(similarities)
+                snapshot = belief.snapshot()
             # (N, 3): every third against every node, one product (the contrast needs them all)
             thirds = nodes @ views[1:].T
             step = navigator.tick(similarities, thirds=thirds,
@@ -219,7 +233,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
 
             if step.finished:
                 timings.append(StepTiming(read_ms, describe_ms, decide_ms, 0.0))
-                _notify(observer, index, frame, step, applied, similarities, timings[-1])
+                _notify(observer, StepRecord(index, frame, step, applied, similarities, timings[-1], snapshot))
                 if navigator.planning_error is not None:
                     raise navigator.planning_error
                 end = EpisodeEnd.ARRIVED if step.state is NavState.ARRIVED else EpisodeEnd.FAILED
@@ -228,7 +242,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             t0 = time.perf_counter()
             base.tick()
             timings.append(StepTiming(read_ms, describe_ms, decide_ms, _ms(t0)))
-            abort = _notify(observer, index, frame, step, applied, similarities, timings[-1])
+            abort = _notify(observer, StepRecord(index, frame, step, applied, similarities, timings[-1], snapshot))
             if abort:
                 end, reason = EpisodeEnd.ABORTED, abort
                 break
@@ -242,12 +256,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         plans=tuple(plans), visited_nodes=_plain(step.visited_nodes) if step is not None else (),
         relocalisations=step.relocalisations if step is not None else 0,
         replans=step.replans if step is not None else 0,
-        thresholds=config.thresholds, timings=tuple(timings))
+        thresholds=config.thresholds, timings=tuple(timings), belief_setup=belief_setup)
 
 
-def _notify(observer: Optional[Observer], index: int, frame: SensorFrame, step: NavigationStep,
-            applied: VelocityCommand, similarities: np.ndarray, timing: StepTiming) -> Optional[str]:
-    if observer is None:
-        return None
-    return observer(StepRecord(index=index, frame=frame, step=step, applied=applied,
-                               similarities=similarities, timing=timing))
+def _notify(observer: Optional[Observer], record: StepRecord) -> Optional[str]:
+    return None if observer is None else observer(record)

@@ -1,5 +1,6 @@
 """The per-step log of an episode (JSON lines): the true pose after each step, what the navigator
-decided and why, and the node the raw view matched best; ``python -m robot.bench replay`` and
+decided and why, the node the raw view matched best, and the belief over the map (its top nodes
+with their mass, the confidence and the entropy); ``python -m robot.bench replay`` and
 the harness's diagnosis read it."""
 
 from __future__ import annotations
@@ -32,7 +33,10 @@ def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray) -> di
             "vote_scores": None if s.vote is None or s.vote.scores is None else
             [r3(s.vote.scores.left), r3(s.vote.scores.middle), r3(s.vote.scores.right)],
             "best_raw_node": int(node_ids[best]), "best_raw_score": r3(sims[best]),
-            "relocalisations": s.relocalisations, "reason": s.reason}
+            "relocalisations": s.relocalisations, "reason": s.reason,
+            "belief_top": None if record.belief is None else [[int(n), round(m, 3)] for n, m in record.belief.top],
+            "belief_confidence": None if record.belief is None else round(record.belief.confidence, 3),
+            "belief_entropy_bits": None if record.belief is None else round(record.belief.entropy_bits, 2)}
 
 
 class StepLog:

@@ -1,0 +1,100 @@
+"""The belief over the map inside the episode loop (robot.episode.belief, robot.episode.loop): set
+up from the map's keyframes, moved by the base's odometry, logged every step."""
+
+import math
+from typing import Sequence
+
+import numpy as np
+import pytest
+
+from controllers.config import NavigationConfig, Thresholds
+from core.hal import Odometry, Pose2D
+from maps.graph import TopoMap
+from robot.episode.belief import ForwardTravel, map_belief
+from robot.episode.loop import EpisodeEnd, run_episode
+from robot.episode.step_log import step_log_entry
+from tests.memory_base import MemoryBase, _decode
+
+N_NODES = 12
+WIDTH_M = 0.7          # how far a view's likeness spreads along the chain: neighbours look alike
+CONFIG = NavigationConfig(thresholds=Thresholds(t_milestone=0.9, t_change_node=0.8, t_limited_control=0.6,
+                                                t_lost=0.3))
+
+
+class SmoothChain:
+    """Views of a corridor along +x with nodes a metre apart: a view is a bump over 4 cells per
+    metre centred where the robot stands, so nodes a metre apart are about 0.6 alike, far ones 0."""
+
+    def __init__(self, n_nodes: int):
+        self.n = n_nodes
+        self.centres = np.arange(0.0, n_nodes - 1 + 1e-9, 0.25)
+
+    def view(self, x_m: float) -> np.ndarray:
+        v = np.exp(-0.5 * ((self.centres - x_m) / WIDTH_M) ** 2)
+        return (v / np.linalg.norm(v)).astype(np.float32)
+
+    def node_descriptors(self) -> np.ndarray:
+        return np.stack([self.view(float(k)) for k in range(self.n)])
+
+    def describe(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        return np.stack([self.view(_decode(img)) for img in images])
+
+    def describe_thirds(self, images: Sequence[np.ndarray]) -> np.ndarray:
+        out = []
+        for img in images:
+            x = _decode(img)
+            out.append(np.stack([self.view(x), self.view(x - 0.3), self.view(x + 0.5), self.view(x - 0.3)]))
+        return np.stack(out)
+
+
+def _map(descriptor: SmoothChain, metric: bool) -> TopoMap:
+    topomap = TopoMap(len(descriptor.centres))
+    for k, d in enumerate(descriptor.node_descriptors()):
+        topomap.add_node(d, keyframe_index=10 * k, stamp_s=float(k), true_pose=Pose2D(float(k), 0.0, 0.0))
+    for k in range(descriptor.n - 1):
+        topomap.add_arc(k, k + 1, 1.0, "sequential", length_m=1.0 if metric else None)
+    return topomap
+
+
+@pytest.mark.parametrize("metric", [True, False])
+def test_the_loop_tracks_the_belief_and_logs_it(metric):
+    descriptor = SmoothChain(N_NODES)
+    topomap = _map(descriptor, metric)
+    records = []
+    base = MemoryBase()
+    base.connect()
+    try:
+        outcome = run_episode(base, topomap, descriptor, N_NODES - 1, CONFIG, 600,
+                              observer=lambda r: records.append((r, base.pose)), thirds_contrast=False)
+    finally:
+        base.close()
+    assert outcome.end is EpisodeEnd.ARRIVED, outcome.reason
+    assert ("cells of 0.25 m" if metric else "node units") in outcome.belief_setup
+    assert all(r.belief is not None for r, _ in records)
+    # after the first look the mode stays within a node of where the robot really is
+    errors = [abs(r.belief.mode - pose.x_m) for r, pose in records[5:]]
+    assert max(errors) <= 1.0, max(errors)
+    assert records[-1][0].belief.confidence > 0.6
+    entry = step_log_entry(records[-1][0], records[-1][1], topomap.node_ids)
+    assert entry["belief_top"][0][0] == records[-1][0].belief.mode and 0 < entry["belief_confidence"] <= 1
+    assert entry["belief_entropy_bits"] >= 0
+
+
+def test_a_map_whose_neighbours_look_unrelated_gets_no_belief():
+    topomap = TopoMap(9)
+    for k in range(8):
+        topomap.add_node(np.eye(9, dtype=np.float32)[k], keyframe_index=k, stamp_s=float(k))
+    for k in range(7):
+        topomap.add_arc(k, k + 1, 1.0, "sequential")
+    belief, why = map_belief(topomap, CONFIG.belief)
+    assert belief is None and why.startswith("no belief:")
+
+
+def test_forward_travel_counts_driving_forward_only():
+    travel = ForwardTravel()
+    assert travel.update(None) == 0.0
+    assert travel.update(Odometry(0.0, 0.0, 0.0, 0, 0, 0, 0)) == 0.0          # the first reading
+    assert travel.update(Odometry(0.3, 0.0, 0.0, 0, 0, 0, 0)) == pytest.approx(0.3)
+    assert travel.update(Odometry(0.1, 0.0, 0.0, 0, 0, 0, 0)) == 0.0          # reversing
+    assert travel.update(Odometry(0.1, 0.0, math.pi / 2, 0, 0, 0, 0)) == 0.0  # turning in place
+    assert travel.update(Odometry(0.1, 0.5, math.pi / 2, 0, 0, 0, 0)) == pytest.approx(0.5)
