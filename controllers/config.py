@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from typing import Optional
 
 from core.hal import VelocityCommand
-from core.validate import check_bool, check_count, check_positive, check_range, check_similarity
+from core.validate import check_bool, check_choice, check_count, check_positive, check_range, check_similarity
 
 
 @dataclass(frozen=True)
@@ -183,6 +183,10 @@ class SupervisorConfig:
         check_bool("confirm_best_of_map", self.confirm_best_of_map)
 
 
+#: the values of ``LocaliserConfig.from_belief``
+BELIEF_LOCALISATION = ("off", "initial", "always")
+
+
 @dataclass(frozen=True)
 class LocaliserConfig:
     """Initial / global localisation: confirm a match, otherwise turn counter-clockwise."""
@@ -244,9 +248,22 @@ class LocaliserConfig:
     #: confirmed by driving). 1: the anchor's offset alone, so one node confirmed early at a
     #: corner, facing the wrong way, turns the gate with it.
     relocalise_heading_confirmations: int = 1
+    #: Not in the paper. Where the robot places itself: "off", the thresholded match above
+    #: (confirm, margins, first view, second look, local search, heading gate); "initial", the
+    #: belief over the map (``navigation.belief``) for the first localisation: it looks, then
+    #: turns in place, until the belief's mode holds ``belief.confidence`` of the mass, facing
+    #: along the route there within ``relocalise_heading_tolerance_deg``; "always", the belief for
+    #: re-localisations too (then only a mode from which the goal is reachable counts).
+    from_belief: str = "off"
+    #: With ``from_belief``: hold still for up to this many ticks, looking, before turning. The
+    #: robot is placed facing along its way, where the mapping drive's views were taken, and a
+    #: turn shows walls the drive never faced, which match look-alikes elsewhere.
+    belief_hold_ticks: int = 10
 
     def __post_init__(self) -> None:
         check_count("confirm_ticks", self.confirm_ticks, 1)
+        check_choice("from_belief", self.from_belief, BELIEF_LOCALISATION)
+        check_count("belief_hold_ticks", self.belief_hold_ticks, 0)
         check_count("relocalise_hops", self.relocalise_hops, 0)
         check_count("relocalise_heading_confirmations", self.relocalise_heading_confirmations, 1)
         check_range("relocalise_heading_tolerance_deg", self.relocalise_heading_tolerance_deg, 0.0, 180.0,
@@ -315,9 +332,19 @@ class BeliefConfig:
     #: the mode is trusted once this much mass lies within confidence_hops arcs of it
     confidence: float = 0.6
     confidence_hops: int = 1
-    #: the exponent of each view's likelihood: successive views are not independent evidence; at
-    #: 10 Hz and 0.25 m/s a camera looks about ten times per 0.25 m cell, so one look in ten counts
+    #: the exponent of each view's likelihood: successive views are not independent evidence (at
+    #: 10 Hz and 0.25 m/s a camera looks about ten times per 0.25 m cell); the stack's
+    #: configs/default.yaml sets what replayed hospital episodes chose (docs/results.md)
     weight: float = 0.1
+    #: directions per cell, relative to the route there (1: none, the robot assumed to face along
+    #: the route); more need the mapping drive's node headings (a map from a video has none)
+    heading_bins: int = 1
+    #: a view's score for a node is the mean of its contrast over the node and the nodes within
+    #: this many arcs: a real place matches a stretch of route, a chance look-alike one keyframe
+    smoothing_hops: int = 0
+    #: share of the mass landing one direction bin short, and as much one over, per bin turned
+    #: (skid-steer odometry turns less or more than it reports)
+    turn_slip: float = 0.1
 
     def __post_init__(self) -> None:
         check_positive("cell_m", self.cell_m)
@@ -329,6 +356,9 @@ class BeliefConfig:
         check_range("confidence", self.confidence, 0.0, 1.0, low_open=True)
         check_count("confidence_hops", self.confidence_hops, 0)
         check_range("weight", self.weight, 0.0, 1.0, low_open=True)
+        check_count("heading_bins", self.heading_bins, 1)
+        check_count("smoothing_hops", self.smoothing_hops, 0)
+        check_range("turn_slip", self.turn_slip, 0.0, 0.5, high_open=True)
 
 
 @dataclass(frozen=True)

@@ -16,6 +16,11 @@ States (:class:`NavState`):
 
 * LOCALISING: initial localisation; holds still to confirm a match, or turns
   counter-clockwise while nothing passes ``t_milestone``; FAILED after a full turn.
+* (belief) with ``localiser.from_belief`` "initial" (or "always": re-localisations too), the
+  belief over the map passed each tick places the robot instead: it holds still looking for
+  ``localiser.belief_hold_ticks``, then turns counter-clockwise, until the belief's mode holds
+  ``belief.confidence`` of the mass and the robot faces along the route there; FAILED after
+  ``localiser.max_search_ticks``.
 * NAVIGATING: following the planned path; actions from the two-cycle voter.
 * (weak vote) the first ``blind_forward_ticks`` ticks without a vote follow the best third
   anyway (LEFT / FORWARD / RIGHT): the target is more likely ahead than behind.
@@ -60,6 +65,7 @@ import networkx as nx
 import numpy as np
 
 from controllers.actions import Action, action_velocity
+from controllers.belief import BeliefSnapshot
 from controllers.config import NavigationConfig
 from controllers.localisation import (
     InitialLocaliser,
@@ -199,6 +205,7 @@ class Navigator:
             maxlen=self.config.localiser.relocalise_heading_confirmations)
         self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
         self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
+        self._belief: Optional[BeliefSnapshot] = None   # this tick's belief over the map, if given
 
     @classmethod
     def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
@@ -236,7 +243,8 @@ class Navigator:
 
     def tick(self, similarities: np.ndarray, thirds: ThirdsInput = None,
              heading_rad: Optional[float] = None,
-             thirds_contrast: Optional[np.ndarray] = None, policy: PolicyInput = None) -> NavigationStep:
+             thirds_contrast: Optional[np.ndarray] = None, policy: PolicyInput = None,
+             belief: Optional[BeliefSnapshot] = None) -> NavigationStep:
         """One control tick.
 
         ``similarities``: the current full view's cosine similarity to every node (column order
@@ -247,6 +255,8 @@ class Navigator:
         third votes when its contrast, not its cosine, exceeds ``t_limited_control``.
         ``policy``: optional ``policy(target_node) -> Action`` for this tick's view; when given it
         replaces the voter while navigating (a learned baseline; ``thirds`` are not needed then).
+        ``belief``: the belief over the map after this view (:meth:`controllers.belief.NodeBelief.snapshot`),
+        which places the robot when ``localiser.from_belief`` asks for it.
         """
         try:
             row = similarity_row(similarities, len(self.node_ids), "similarities")
@@ -255,6 +265,7 @@ class Navigator:
         if self._final is not None:
             return self._final
         self._ticks += 1
+        self._belief = belief
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
         self._contrast = thirds_contrast
@@ -269,8 +280,15 @@ class Navigator:
                                 neighbourhoods=self._neighbourhoods, t_floor=self.config.thresholds.t_lost,
                                 first_view=first_view, first_view_nodes=self._goal_reachers)
 
+    def _by_belief(self) -> bool:
+        """Whether this (re-)localisation places the robot from the belief (``from_belief``)."""
+        mode = self.config.localiser.from_belief
+        return mode == "always" or (mode == "initial" and self._state is NavState.LOCALISING)
+
     def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         self.filter.update(row)  # keep the filter warm for the supervisor that follows
+        if self._by_belief():
+            return self._localise_by_belief(heading_rad)
         if self._state is NavState.RELOCALISING:
             # A re-localisation only accepts nodes from which the goal can still be reached:
             # the robot was on its way there, so a node with no arc chain to the goal is a
@@ -293,7 +311,41 @@ class Navigator:
             return self._fail(result.reason, turned_rad=result.turned_rad)
         if result.status is not LocaliserStatus.LOCALISED:
             return self._step(result.action, reason=result.reason, turned_rad=result.turned_rad)
-        start = result.node
+        return self._start(result.node, result.reason, heading_rad)
+
+    def _localise_by_belief(self, heading_rad: Optional[float]) -> NavigationStep:
+        """Look for ``belief_hold_ticks``, then turn in place (the belief keeps each view with the
+        heading it was taken at), until the belief's mode is trusted and the robot faces along the
+        route there; see ``from_belief``."""
+        belief = self._belief
+        if belief is None:
+            raise NavigationInputError("localiser.from_belief needs the belief over the map every tick (belief=)")
+        if self._search is None:
+            self._search, self._search_ticks = TurnMeter(), 0
+        turned = self._search.update(heading_rad)
+        self._search_ticks += 1
+        node, level = belief.mode, self.config.belief.confidence
+        tolerance = self.config.localiser.relocalise_heading_tolerance_deg
+        facing = belief.facing_deg is None or abs(belief.facing_deg) <= tolerance
+        reachable = self._state is NavState.LOCALISING or node in self._goal_reachers
+        if belief.confidence >= level and facing and reachable:
+            self._search = None
+            where = "" if belief.facing_deg is None else ", facing along the route"
+            return self._start(node, f"belief: node {node!r} holds {belief.confidence:.2f} of the mass "
+                                     f"(>= {level:g}){where}", heading_rad)
+        if self._search_ticks >= self.config.localiser.max_search_ticks:
+            return self._fail(f"the belief did not settle in {self._search_ticks} ticks (mode {node!r} with "
+                              f"{belief.confidence:.2f} of the mass)", turned_rad=turned)
+        why = ("not trusted yet" if belief.confidence < level else
+               "facing away from the route there" if not facing else "the goal is not reachable from it")
+        if self._search_ticks <= self.config.localiser.belief_hold_ticks:
+            return self._step(Action.NONE, reason=f"belief: node {node!r} with {belief.confidence:.2f} of the mass, "
+                                                  f"{why}; looking")
+        return self._step(Action.SEARCH_ROTATE, turned_rad=turned,
+                          reason=f"belief: node {node!r} with {belief.confidence:.2f} of the mass, {why}; turning")
+
+    def _start(self, start: NodeId, reason: str, heading_rad: Optional[float]) -> NavigationStep:
+        """Placed at ``start``: plan to the goal and navigate (FAILED when no plan exists)."""
         if self._state is NavState.LOCALISING:
             self._set_anchor(start, heading_rad)
         self._local = None
@@ -302,14 +354,14 @@ class Navigator:
             plan = self.planner.plan(start, self.goal_node)
         except PlanningError as exc:
             self._planning_error = exc
-            return self._fail(f"{result.reason}; {exc}")
+            return self._fail(f"{reason}; {exc}")
         self._plans += 1
         self._plan = plan.nodes
         self._supervisor = NodeSwitchSupervisor(plan.nodes, self.node_ids, self.config, self.filter)
         self.voter.reset()
         self._no_vote_ticks = 0
         self._state = NavState.NAVIGATING
-        return self._step(Action.NONE, reason=f"{result.reason}; planned "
+        return self._step(Action.NONE, reason=f"{reason}; planned "
                           f"{len(plan.nodes)} nodes (cost {plan.cost:g}) to goal {self.goal_node!r}")
 
     def _relocalise(self, why: str, decision: Optional[SupervisorDecision]) -> NavigationStep:

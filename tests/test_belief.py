@@ -3,6 +3,7 @@ made up from the robot's true place: look-alike corridors, a kidnapped robot, no
 map without metric arcs."""
 
 import math
+from dataclasses import replace
 
 import networkx as nx
 import numpy as np
@@ -25,6 +26,11 @@ def loop(n: int, spacing_m: float = SPACING_M) -> tuple[nx.DiGraph, dict]:
     return graph, {(k, (k + 1) % n): spacing_m for k in range(n)}
 
 
+def circle(n: int) -> dict:
+    """Node headings of a loop driven as a circle (counter-clockwise, node 0 heading east)."""
+    return {k: math.pi / 2 + 2 * math.pi * k / n for k in range(n)}
+
+
 class Views:
     """Similarity rows of a robot at arc length ``s`` on the loop: the nodes near it score high
     (falling off over about a node spacing), the others low, plus seeded noise; ``twins[a] = b``
@@ -45,12 +51,15 @@ class Views:
 
 
 def drive(belief: NodeBelief, views: Views, start_m: float, metres: float, step_m: float = 0.05,
-          odometry_scale=lambda: 1.0) -> float:
-    """Drive forward ``metres`` from ``start_m``, one observation per step; returns where it ended."""
+          odometry_scale=lambda: 1.0, turn_per_m: float | None = None) -> float:
+    """Drive forward ``metres`` from ``start_m``, one observation per step, turning ``turn_per_m``
+    (default: as the loop does when it is driven as a circle, :func:`circle`); returns where it
+    ended."""
     s = start_m
+    turn_per_m = 2 * math.pi / (views.n * SPACING_M) if turn_per_m is None else turn_per_m
     for _ in range(int(round(metres / step_m))):
         s += step_m
-        belief.move(step_m * odometry_scale())
+        belief.move(step_m * odometry_scale(), step_m * turn_per_m)
         belief.observe(views.row(s))
     return s
 
@@ -68,9 +77,10 @@ def test_contrast_ignores_a_global_drop_of_every_cosine():
 def test_the_likelihood_ratio_rises_with_the_score_between_far_places_and_a_cap():
     c = np.linspace(-3, 6, 50)
     r = MODEL.log_ratio(c)
-    assert np.all(np.diff(r) >= -1e-12) and r[-1] > r[25] > 0
-    assert MODEL.log_ratio(np.array([-2.0]))[0] == MODEL.log_ratio(np.array([0.0]))[0] == 0.0
-    assert MODEL.log_ratio(np.array([50.0]))[0] == MODEL.log_ratio(np.array([5.0]))[0] == pytest.approx(15.0)
+    assert np.all(np.diff(r) >= -1e-12) and r[-1] > r[25] > r[0]
+    assert MODEL.log_ratio(np.array([1.5]))[0] == 0.0                 # halfway: says nothing
+    assert MODEL.log_ratio(np.array([-2.0]))[0] == MODEL.log_ratio(np.array([0.0]))[0] == pytest.approx(-4.5)
+    assert MODEL.log_ratio(np.array([50.0]))[0] == MODEL.log_ratio(np.array([5.0]))[0] == pytest.approx(10.5)
     rng = np.random.default_rng(0)
     fitted = SimilarityModel.fit(rng.normal(3, 1, 500), rng.normal(0, 1, 500))
     assert fitted.mean_same == pytest.approx(3, abs=0.15) and fitted.std == pytest.approx(1, abs=0.1)
@@ -110,12 +120,14 @@ def test_the_filter_follows_a_robot_driving_the_loop():
     assert belief.confidence > 0.8
 
 
-def test_a_corridor_alike_at_two_places_is_resolved_by_driving():
+@pytest.mark.parametrize("bins", [1, 8])
+def test_a_corridor_alike_at_two_places_is_resolved_by_driving(bins):
     """Nodes 2-5 look exactly like nodes 12-15 (the same corridor seen twice); standing in it the
     mass splits; driving on past node 6, which has no twin, settles it."""
     graph, lengths = loop(20)
     twins = {2: 12, 3: 13, 4: 14, 5: 15}
-    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, config=W3)
+    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, config=replace(W3, heading_bins=bins),
+                        node_headings=circle(20))
     views = Views(20, twins=twins, seed=3)
     s = 3 * SPACING_M
     for _ in range(20):
@@ -128,9 +140,11 @@ def test_a_corridor_alike_at_two_places_is_resolved_by_driving():
     assert belief.mode == nearest(s, 20) and belief.confidence > 0.8, belief.top(4)
 
 
-def test_a_kidnapped_robot_is_found_again():
+@pytest.mark.parametrize("bins", [1, 8])
+def test_a_kidnapped_robot_is_found_again(bins):
     graph, lengths = loop(20)
-    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, config=W3)
+    belief = NodeBelief(graph, range(20), MODEL, arc_lengths_m=lengths, config=replace(W3, heading_bins=bins),
+                        node_headings=circle(20))
     views = Views(20, seed=5)
     s = drive(belief, views, 1 * SPACING_M, 3.0)
     assert belief.mode == nearest(s, 20)
@@ -139,12 +153,14 @@ def test_a_kidnapped_robot_is_found_again():
     assert belief.mode == nearest(s + 2.0, 20) and belief.confidence > 0.7, belief.top()
 
 
+@pytest.mark.parametrize("bins", [1, 8])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_noisy_odometry_does_not_make_the_belief_diverge(seed):
+def test_noisy_odometry_does_not_make_the_belief_diverge(seed, bins):
     """Odometry off by up to +-30 % every step (slip, a blocked wheel): over 60 m the mode never
     strays more than one node from the truth."""
     graph, lengths = loop(25)
-    belief = NodeBelief(graph, range(25), MODEL, arc_lengths_m=lengths, config=W3)
+    belief = NodeBelief(graph, range(25), MODEL, arc_lengths_m=lengths, config=replace(W3, heading_bins=bins),
+                        node_headings=circle(25))
     views = Views(25, seed=seed, noise=0.05)
     rng = np.random.default_rng(seed)
     s, worst = 0.0, 0
@@ -177,8 +193,12 @@ def test_bad_arguments_are_named():
     belief = NodeBelief(graph, range(4), MODEL, arc_lengths_m=lengths)
     with pytest.raises(ValueError, match="4 finite similarities"):
         belief.observe(np.zeros(3))
-    with pytest.raises(ValueError, match="travelled"):
-        belief.move(-1.0)
+    with pytest.raises(ValueError, match="along"):
+        belief.move(math.nan)
+    with pytest.raises(ValueError, match="heading_bins 4 needs"):
+        NodeBelief(graph, range(4), MODEL, config=BeliefConfig(heading_bins=4))
+    with pytest.raises(ValueError, match="heading_bins"):
+        BeliefConfig(heading_bins=0)
     with pytest.raises(ValueError, match="stay \\+ skip"):
         BeliefConfig(stay=0.6, skip=0.5)
 
@@ -206,7 +226,7 @@ def test_on_a_loop_the_filter_is_filterpys_discrete_bayes():
     rng = np.random.default_rng(11)
     reference = rng.random(9)
     reference /= reference.sum()
-    belief._p = reference.copy()
+    belief._p = reference.copy()[:, None]
     for _ in range(5):
         reference = discrete_bayes.predict(reference, 1, [config.stay, 1 - config.stay - config.skip, config.skip])
         belief.advance()
@@ -215,3 +235,82 @@ def test_on_a_loop_the_filter_is_filterpys_discrete_bayes():
         reference = discrete_bayes.update(np.exp(0.4 * MODEL.log_ratio(contrast(row))), reference)
         belief.observe(row)
         np.testing.assert_allclose(belief.cell_probabilities, reference, atol=1e-12)
+
+
+# -- directions: the robot's heading relative to the route ---------------------------------
+
+B8 = BeliefConfig(weight=0.3, heading_bins=8)
+
+
+def square(n_side: int = 5) -> tuple[nx.DiGraph, dict, dict]:
+    """A loop around a square block, ``n_side`` arcs per side; the route turns left 90 deg at
+    every corner (node headings 0, 90, 180, 270 deg)."""
+    graph, lengths = loop(4 * n_side)
+    headings = {k: math.radians(90.0 * (k // n_side)) for k in range(4 * n_side)}
+    return graph, lengths, headings
+
+
+def unmatched_row(rng: np.random.Generator, n: int) -> np.ndarray:
+    """A view that no keyframe shows (a wall, the route seen backwards): every node scores low,
+    and one node at random looks alike."""
+    row = 0.25 + rng.normal(0.0, 0.03, n)
+    row[rng.integers(n)] = 0.8
+    return row
+
+
+def test_a_turn_in_place_keeps_what_the_views_said():
+    """Placed at node 3 facing along the route, the robot turns a full circle in place; the views
+    on the way match no keyframe but a random look-alike each, until it faces along again. The
+    belief keeps node 3 all the way round (those views are what facing away from the route
+    predicts) and knows which way it faces."""
+    graph, lengths, headings = square()
+    n = len(headings)
+    views, rng = Views(n, seed=2), np.random.default_rng(2)
+    belief = NodeBelief(graph, range(n), MODEL, config=B8, arc_lengths_m=lengths, node_headings=headings)
+    for _ in range(15):
+        belief.observe(views.row(3 * SPACING_M))
+    for k in range(1, 41):                                   # 9 deg per step, 360 deg in all
+        belief.move(0.0, math.radians(9.0))
+        facing_along = min(9 * k, 360 - 9 * k) < 25
+        belief.observe(views.row(3 * SPACING_M) if facing_along else unmatched_row(rng, n))
+        assert belief.mode == 3 and belief.confidence > 0.8, (k, belief.top())
+        if k == 20:
+            assert belief.facing_deg == 180.0                # facing back down the route
+    assert belief.facing_deg == 0.0
+
+
+def test_driving_round_corners_keeps_the_place_and_the_direction():
+    """Driving the square, turning at every corner node as the route does: the relative direction
+    stays along the route and the mode follows the robot."""
+    graph, lengths, headings = square()
+    n = len(headings)
+    belief = NodeBelief(graph, range(n), MODEL, config=B8, arc_lengths_m=lengths, node_headings=headings)
+    views = Views(n, seed=4)
+    s = 1 * SPACING_M
+    for _ in range(10):
+        belief.observe(views.row(s))
+    for _ in range(n + 5):                                   # more than a lap, one node at a time
+        s = drive(belief, views, s, SPACING_M, step_m=0.1, turn_per_m=0.0)
+        if nearest(s, n) % 5 == 0:                           # a corner: turn left on the spot
+            for _ in range(9):
+                belief.move(0.0, math.radians(10.0))
+                belief.observe(views.row(s))
+        assert belief.mode == nearest(s, n), (s, belief.top())
+        assert belief.facing_deg == 0.0, belief.facing_deg
+    assert belief.confidence > 0.8
+
+
+def test_each_direction_moves_its_own_way():
+    """Facing along the route the mass drives forward, facing back it drives backward, side-on
+    it stays: the motion model, without views."""
+    graph, lengths, headings = square()
+    belief = NodeBelief(graph, range(20), MODEL, config=replace(B8, stay=0.0, skip=0.0, mixing=0.0),
+                        arc_lengths_m=lengths, node_headings=headings)
+    belief.reset({7: 1.0})                                  # on the straight side 5-10, every direction
+    belief.move(2 * SPACING_M)
+    p = belief.state_probabilities
+    nodes = list(range(20))
+    assert p[nodes.index(9), 0] == pytest.approx(1 / 8)     # along the route: two nodes on
+    assert p[nodes.index(5), 4] == pytest.approx(1 / 8)     # facing back: two nodes back
+    assert p[nodes.index(7), 2] == p[nodes.index(7), 6] == pytest.approx(1 / 8)   # side-on: stays
+    assert belief.cell_probabilities.sum() == pytest.approx(1.0)

@@ -6,6 +6,7 @@ import math
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from robot.bench import paper
@@ -290,6 +291,45 @@ def test_a_run_folder_replays_elsewhere_and_rebuilds_a_missing_map(serial_run, t
     assert replay.main(args) == 2
     err = capsys.readouterr().err
     assert "/nowhere/custom-map is missing" in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_belief_runs_offline_over_the_views_as_it_ran_in_the_loop(serial_run, tmp_path, capsys):
+    """``--step-logs`` writes the views beside each step log; ``bench belief`` runs the filter over
+    them and, with the run's own settings, finds the belief the loop logged."""
+    from robot.bench import belief as bench_belief
+    from robot.bench.belief import load_recorded, run_filter
+    from robot.episode.step_log import read_views
+    from robot.settings import load_stack_config
+
+    out, _ = serial_run
+    run = tmp_path / "run"
+    for part in ("episodes", "maps", "replays"):
+        shutil.copytree(out / part, run / part)
+    episode = next((run / "episodes").glob("*_ours_0.json"))
+    steps = json.loads(episode.read_text())["metrics"]["steps"]
+    views = read_views(run / "replays" / (episode.stem + ".views.npz"))
+    assert views.similarities.shape == (steps, views.node_ids.size) and np.isfinite(views.odometry).all()
+
+    recorded = load_recorded(episode, load_stack_config(None), progress=False)
+    logged = [s["belief_top"][0][0] for s in recorded.steps]
+    offline = [s["belief_top"][0][0] for s in run_filter(recorded, load_stack_config(None).navigation.belief)]
+    assert np.mean(np.equal(logged, offline)) >= 0.98        # float16 views: rare ties may differ
+
+    parser = argparse.ArgumentParser()
+    bench_belief.add_arguments(parser)
+    table = tmp_path / "belief.json"
+    args = parser.parse_args([str(episode), "--set", "heading_bins=1,8", "--json", str(table), "--quiet"])
+    assert bench_belief.main(args) == 0
+    printed = capsys.readouterr().out
+    assert "| heading_bins=1 |" in printed and "| heading_bins=8 |" in printed
+    results = json.loads(table.read_text())["results"]
+    assert [r["setting"]["heading_bins"] for r in results] == [1, 8]
+    assert all(r["belief_steps"] == steps for r in results)
+
+    (run / "replays" / (episode.stem + ".views.npz")).unlink()
+    args = parser.parse_args([str(episode), "--quiet"])
+    assert bench_belief.main(args) == 2
+    assert "replay it first" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("make, message", [

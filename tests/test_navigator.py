@@ -547,3 +547,81 @@ def test_the_heading_gate_takes_the_median_offset_of_the_last_confirmations():
     assert Navigator(graph, list(range(10)), 9, median).heading_offset() is None
     with pytest.raises(ValueError, match="relocalise_heading_confirmations"):
         replace(CONFIG.localiser, relocalise_heading_confirmations=0)
+
+
+# -- placed by the belief over the map (localiser.from_belief) ------------------------------
+
+def _belief_config(mode: str, hold: int = 2) -> NavigationConfig:
+    from dataclasses import replace as _replace
+
+    return _replace(CONFIG, localiser=_replace(CONFIG.localiser, from_belief=mode, belief_hold_ticks=hold),
+                    belief=_replace(CONFIG.belief, heading_bins=8, weight=0.3))
+
+
+def _snapshot(node, confidence, facing_deg=0.0):
+    from controllers.belief import BeliefSnapshot
+
+    return BeliefSnapshot(top=((node, confidence),), confidence=confidence, entropy_bits=1.0, facing_deg=facing_deg)
+
+
+def test_the_belief_places_the_robot_once_trusted_and_facing_along_the_route():
+    graph, poses = chain(6)
+    places = SyntheticPlaces(poses, seed=1)
+    nav = Navigator(graph, sorted(poses), 5, _belief_config("initial"))
+    view = places.similarities(poses[0])
+    for _ in range(2):                                     # looking first, holding still
+        step = nav.tick(view, heading_rad=0.0, belief=_snapshot(3, 0.4))
+        assert step.state is NavState.LOCALISING and step.action is Action.NONE
+        assert step.reason.endswith("not trusted yet; looking")
+    step = nav.tick(view, heading_rad=0.0, belief=_snapshot(3, 0.4))
+    assert step.action is Action.SEARCH_ROTATE and step.reason.endswith("not trusted yet; turning")
+    step = nav.tick(view, heading_rad=0.1, belief=_snapshot(3, 0.9, facing_deg=180.0))
+    assert step.action is Action.SEARCH_ROTATE and "facing away from the route" in step.reason
+    step = nav.tick(view, heading_rad=0.2, belief=_snapshot(1, 0.9))
+    assert step.state is NavState.NAVIGATING and step.current_node == 1 and step.planned_path == (1, 2, 3, 4, 5)
+    assert step.reason.startswith("belief: node 1 holds 0.90 of the mass")
+    with pytest.raises(NavigationInputError, match="needs the belief"):
+        Navigator(graph, sorted(poses), 5, _belief_config("initial")).tick(view, heading_rad=0.0)
+
+
+def test_a_belief_that_never_settles_fails_after_the_search_budget():
+    from dataclasses import replace as _replace
+
+    graph, poses = chain(4)
+    config = _belief_config("initial")
+    config = _replace(config, localiser=_replace(config.localiser, max_search_ticks=20))
+    nav = Navigator(graph, sorted(poses), 3, config)
+    view = SyntheticPlaces(poses).similarities(poses[0])
+    steps = [nav.tick(view, heading_rad=0.05 * k, belief=_snapshot(2, 0.3)) for k in range(25)]
+    assert steps[18].action is Action.SEARCH_ROTATE and steps[19].state is NavState.FAILED
+    assert "the belief did not settle in 20 ticks" in steps[19].reason
+
+
+def test_with_the_belief_the_robot_places_itself_and_drives_the_loop(loop):
+    """Closed loop on the square: the belief (a real filter, fed the unicycle's odometry) places
+    the robot, which then drives to the goal across the loop closure."""
+    from controllers.belief import NodeBelief, SimilarityModel
+
+    graph, poses = loop
+    ids = sorted(poses)
+    places = SyntheticPlaces(poses, seed=4)
+    config = _belief_config("initial")
+    lengths = {(a, b): poses[a].distance_to(poses[b]) or 0.1 for a, b in graph.edges}
+    belief = NodeBelief(graph, ids, SimilarityModel(mean_same=3.0, mean_other=0.0, std=1.0), config=config.belief,
+                        arc_lengths_m=lengths, node_headings={n: poses[n].yaw_rad for n in ids})
+    goal = ids[len(ids) // 2]
+    nav = Navigator(graph, ids, goal, config)
+    pose, last = offset(poses[ids[2]], forward_m=0.2), None
+    for _ in range(3000):
+        if last is not None:
+            c, s = math.cos(last.yaw_rad), math.sin(last.yaw_rad)
+            belief.move((pose.x_m - last.x_m) * c + (pose.y_m - last.y_m) * s, wrap_angle(pose.yaw_rad - last.yaw_rad))
+        row = places.similarities(pose)
+        belief.observe(row)
+        step = nav.tick(row, thirds=lambda node, pose=pose: places.thirds(pose, node), heading_rad=pose.yaw_rad,
+                        belief=belief.snapshot())
+        if step.finished:
+            break
+        last, pose = pose, drive(pose, step.velocity, DT_S)
+    assert nav.visited_nodes[0] in (ids[1], ids[2], ids[3])
+    assert step.state is NavState.ARRIVED and pose.distance_to(poses[goal]) < 1.0

@@ -66,15 +66,16 @@ class Confirmation:
     belief_wrong: Optional[bool] = None  # the mode judged by the same rule
 
     def is_wrong(self, far_m: float = FAR_M, near_m: float = NEAR_M, turned_deg: float = TURNED_DEG) -> bool:
-        return _wrong(self.distance_m, self.heading_error_deg, far_m, near_m, turned_deg)
+        return wrong_place(self.distance_m, self.heading_error_deg, far_m, near_m, turned_deg)
 
 
-def _wrong(distance_m: float, heading_error_deg: float, far_m: float = FAR_M, near_m: float = NEAR_M,
-           turned_deg: float = TURNED_DEG) -> bool:
+def wrong_place(distance_m: float, heading_error_deg: float, far_m: float = FAR_M, near_m: float = NEAR_M,
+                turned_deg: float = TURNED_DEG) -> bool:
+    """The rule of the module docstring: too far from the node, or off it and facing away."""
     return distance_m > far_m or (distance_m > near_m and abs(heading_error_deg) > turned_deg)
 
 
-def _placement(step: Mapping, node, poses: Mapping) -> tuple[float, float]:
+def placement(step: Mapping, node, poses: Mapping) -> tuple[float, float]:
     """The robot's distance from the node's true pose and its heading error (degrees)."""
     if node not in poses:
         raise KeyError(f"node {node!r} of the step log is not a node of the map")
@@ -217,14 +218,14 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
         mode = belief[0][0] if belief else None
         mode_wrong = None
         if mode is not None:
-            mode_wrong = _wrong(*_placement(s, mode, poses))
+            mode_wrong = wrong_place(*placement(s, mode, poses))
             counts["steps"] += 1
             counts["right"] += not mode_wrong
             if (s.get("belief_confidence") or 0.0) >= CONFIDENT:
                 counts["confident"] += 1
                 counts["confident_right"] += not mode_wrong
         if kind is not None:
-            distance, error = _placement(s, node, poses)
+            distance, error = placement(s, node, poses)
             x, y, _ = poses[node]
             confirmations.append(Confirmation(
                 step=int(s["step"]), node=node, kind=kind, x_m=float(s["x_m"]), y_m=float(s["y_m"]),

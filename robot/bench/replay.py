@@ -5,8 +5,10 @@ trial (world, map, start pose, appearance seed, method: everything is in the epi
 this process the way the harness ran it (one torch thread), and writes what a trace picture
 cannot show: for every step the true pose, the navigator's state and action, the current and
 target node with their filtered scores, the thirds' scores, the node the raw view matched best,
-the navigator's reason and the belief over the map (top nodes with their mass, confidence, entropy) (JSON lines, ``RUN/replays/<episode>.steps.jsonl`` by default;
-``--video`` adds the MP4 with overlays). It prints the episode's events (localised, node
+the navigator's reason and the belief over the map (top nodes with their mass, confidence, entropy,
+direction) (JSON lines, ``RUN/replays/<episode>.steps.jsonl`` by default), and beside it what the
+robot saw (``<episode>.views.npz``: the view's similarity to every node and the odometry, for
+``python -m robot.bench belief``); ``--video`` adds the MP4 with overlays. It prints the episode's events (localised, node
 reached, lost, searching, ...) and whether the replay reproduced the recorded episode (same
 steps, end, success, final distance, re-localisations): the runs are deterministic, so a
 difference means the code or the configuration changed since.
@@ -220,7 +222,9 @@ def main(args: argparse.Namespace) -> int:
     diagnosis = _diagnosis(log, trial, result.get("goal_node"))
     if diagnosis:
         print(diagnosis)
-    written = [str(log)] if log.is_file() else []
+    from robot.episode.step_log import views_path
+
+    written = [str(p) for p in (log, views_path(log)) if p.is_file()]
     written += [str(p) for p in (args.video, args.trace) if p is not None]
     if written:
         print(f"wrote {', '.join(written)}")

@@ -6,8 +6,9 @@ HAL-agnostic: the same loop runs the simulated Limo and the serial Limo. Every c
     x = descriptor.describe_thirds([frame.rgb])[0]        # (4, D): full view, Left, Middle, Right
     row = node_descriptors @ x[0]                         # similarity to every node (one product)
     thirds = node_descriptors @ x[1:].T                   # (N, 3): every third against every node
-    belief.move(forward odometry); belief.observe(row)   # the belief over the map (logged, not steering)
-    step = navigator.tick(row, thirds=thirds, thirds_contrast=contrast_thirds(thirds), heading_rad=yaw)
+    belief.move(odometry motion); belief.observe(row)    # the belief over the map
+    step = navigator.tick(row, thirds=thirds, thirds_contrast=contrast_thirds(thirds), heading_rad=yaw,
+                          belief=belief.snapshot())       # it places the robot with localiser.from_belief
     base.apply(step.velocity); base.tick()
 
 and it stops when the navigator declares arrival or failure, the step budget runs out, the base
@@ -27,7 +28,7 @@ from __future__ import annotations
 
 import enum
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Optional, Protocol, Sequence
 
 import numpy as np
@@ -40,7 +41,7 @@ from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
 from descriptors.base import Descriptor
 from maps.graph import TopoMap
-from robot.episode.belief import ForwardTravel, map_belief
+from robot.episode.belief import OdometryMotion, map_belief
 
 
 @dataclass(frozen=True)
@@ -183,11 +184,14 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
     node_ids = topomap.node_ids
     nodes = np.ascontiguousarray(topomap.descriptors, dtype=np.float32)
+    belief, belief_setup = map_belief(topomap, config.belief)
+    if belief is None and config.localiser.from_belief != "off":
+        config = replace(config, localiser=replace(config.localiser, from_belief="off"))
+        belief_setup += "; the robot places itself by the thresholded match instead (localiser.from_belief off)"
     navigator = Navigator(topomap.graph, node_ids, goal_node, config,
                           node_headings=topomap.odom_headings)
     heading = _Heading()
-    belief, belief_setup = map_belief(topomap, config.belief)
-    travel = ForwardTravel()
+    motion = OdometryMotion()
     snapshot: Optional[BeliefSnapshot] = None
     timings: list[StepTiming] = []
     plans: list[tuple[int, ...]] = []
@@ -216,16 +220,15 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
 
             t0 = time.perf_counter()
             if belief is not None:
-                forward_m = travel.update(frame.odometry)
-                if belief.metric:
-                    belief.move(forward_m)
+                along, turned = motion.update(frame.odometry)
+                belief.move(along if belief.metric else 0.0, turned)
                 belief.observe(similarities)
                 snapshot = belief.snapshot()
             # (N, 3): every third against every node, one product (the contrast needs them all)
             thirds = nodes @ views[1:].T
             step = navigator.tick(similarities, thirds=thirds,
                                   thirds_contrast=contrast_thirds(thirds) if thirds_contrast else None,
-                                  heading_rad=heading.update(frame), policy=policy)
+                                  heading_rad=heading.update(frame), policy=policy, belief=snapshot)
             applied = base.apply(step.velocity)
             decide_ms = _ms(t0)
             if step.planned_path and (not plans or plans[-1] != _plain(step.planned_path)):
