@@ -142,3 +142,33 @@ def test_odometry_motion_is_along_the_heading_and_turning():
     # across the +-pi seam the turn is the short way round
     motion.update(Odometry(0.1, 0.5, math.pi - 0.05, 0, 0, 0, 0))
     assert motion.update(Odometry(0.1, 0.5, -math.pi + 0.05, 0, 0, 0, 0))[1] == pytest.approx(0.1)
+
+
+def test_the_step_log_keeps_the_views_beside_it(tmp_path):
+    """What the robot saw at each step (the similarity row, the odometry) goes beside the step
+    log, so the belief can be run again offline (python -m robot.bench belief)."""
+    from robot.episode.step_log import StepLog, ViewsError, read_views, views_path
+
+    descriptor = SmoothChain(N_NODES)
+    topomap = _map(descriptor, True)
+    records = []
+    base = MemoryBase()
+    base.connect()
+    try:
+        run_episode(base, topomap, descriptor, 4, CONFIG, 80, observer=lambda r: records.append((r, base.pose)),
+                    thirds_contrast=False)
+    finally:
+        base.close()
+    log = StepLog(tmp_path / "ep.steps.jsonl", topomap.node_ids)
+    for record, pose in records:
+        log.write(record, pose)
+    log.close()
+    views = read_views(views_path(log.path))
+    assert views_path(log.path).name == "ep.views.npz"
+    assert views.similarities.shape == (len(records), N_NODES)
+    np.testing.assert_allclose(views.similarities[-1], records[-1][0].similarities, atol=1e-3)   # float16
+    last = records[-1][0].frame.odometry
+    np.testing.assert_allclose(views.odometry[-1], (last.x_m, last.y_m, last.yaw_rad))
+    (tmp_path / "bad.views.npz").write_bytes(b"not a zip")
+    with pytest.raises(ViewsError, match="bad.views.npz: cannot read the views"):
+        read_views(tmp_path / "bad.views.npz")
