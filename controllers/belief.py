@@ -248,6 +248,7 @@ class NodeBelief:
                 previous = cell
             nexts[previous].append(b)
         self._node_a, self._node_b, self._frac = np.asarray(node_a), np.asarray(node_b), np.asarray(frac)
+        self._nearer = np.where(self._frac < 0.5, self._node_a, self._node_b)   # the node a cell counts for
         self.n_cells = len(node_a)
         self._next = nexts
         self._bin_of_cell = self._cell_bins(node_headings)
@@ -325,11 +326,7 @@ class NodeBelief:
     @property
     def node_probabilities(self) -> np.ndarray:
         """Mass per node (column order ``node_ids``): each cell's mass goes to the nearer end of its arc."""
-        return np.bincount(self._nearer_node, weights=self.cell_probabilities, minlength=len(self.node_ids))
-
-    @property
-    def _nearer_node(self) -> np.ndarray:
-        return np.where(self._frac < 0.5, self._node_a, self._node_b)
+        return np.bincount(self._nearer, weights=self.cell_probabilities, minlength=len(self.node_ids))
 
     @property
     def mode(self) -> NodeId:
@@ -338,34 +335,45 @@ class NodeBelief:
     @property
     def confidence(self) -> float:
         """The mass within ``confidence_hops`` arcs of the mode."""
-        nodes = self.node_probabilities
-        return float(nodes[self._near[int(np.argmax(nodes))]].sum())
+        return self._confidence(self.node_probabilities)
 
     @property
     def entropy_bits(self) -> float:
-        nodes = self.node_probabilities
-        nz = nodes[nodes > 0]
-        return float(-(nz * np.log2(nz)).sum())
+        return self._entropy_bits(self.node_probabilities)
 
     @property
     def facing_deg(self) -> Optional[float]:
         """The most probable direction at the mode, relative to the route there (degrees in
         (-180, 180]; None without direction bins)."""
+        return self._facing_deg(self.node_probabilities)
+
+    def top(self, k: int = 3) -> list[tuple[NodeId, float]]:
+        return self._top(self.node_probabilities, k)
+
+    def snapshot(self, k: int = 3) -> "BeliefSnapshot":
+        """What a log shows of the belief now (the node masses summed once)."""
+        nodes = self.node_probabilities
+        return BeliefSnapshot(top=tuple(self._top(nodes, k)), confidence=self._confidence(nodes),
+                              entropy_bits=self._entropy_bits(nodes), facing_deg=self._facing_deg(nodes))
+
+    def _confidence(self, nodes: np.ndarray) -> float:
+        return float(nodes[self._near[int(np.argmax(nodes))]].sum())
+
+    @staticmethod
+    def _entropy_bits(nodes: np.ndarray) -> float:
+        nz = nodes[nodes > 0]
+        return float(-(nz * np.log2(nz)).sum())
+
+    def _facing_deg(self, nodes: np.ndarray) -> Optional[float]:
         if self.bins == 1:
             return None
-        at_mode = self._p[self._nearer_node == int(np.argmax(self.node_probabilities))].sum(axis=0)
+        at_mode = self._p[self._nearer == int(np.argmax(nodes))].sum(axis=0)
         angle = 360.0 * int(np.argmax(at_mode)) / self.bins
         return angle - 360.0 if angle > 180.0 else angle
 
-    def top(self, k: int = 3) -> list[tuple[NodeId, float]]:
-        nodes = self.node_probabilities
+    def _top(self, nodes: np.ndarray, k: int) -> list[tuple[NodeId, float]]:
         order = np.argsort(-nodes, kind="stable")[:k]
         return [(self.node_ids[int(j)], float(nodes[j])) for j in order]
-
-    def snapshot(self, k: int = 3) -> "BeliefSnapshot":
-        """What a log shows of the belief now."""
-        return BeliefSnapshot(top=tuple(self.top(k)), confidence=self.confidence, entropy_bits=self.entropy_bits,
-                              facing_deg=self.facing_deg)
 
     # -- updates ----------------------------------------------------------------------------
 

@@ -57,18 +57,25 @@ def _map(descriptor: SmoothChain, metric: bool) -> TopoMap:
     return topomap
 
 
+def _drive(topomap: TopoMap, descriptor, goal: int, config: NavigationConfig, max_steps: int,
+           start: Pose2D = Pose2D(0.0, 0.0, 0.0)):
+    """One episode on a memory base: the outcome and every step's record with the true pose."""
+    records = []
+    base = MemoryBase(start=start)
+    base.connect()
+    try:
+        outcome = run_episode(base, topomap, descriptor, goal, config, max_steps,
+                              observer=lambda r: records.append((r, base.pose)), thirds_contrast=False)
+    finally:
+        base.close()
+    return outcome, records
+
+
 @pytest.mark.parametrize("metric", [True, False])
 def test_the_loop_tracks_the_belief_and_logs_it(metric):
     descriptor = SmoothChain(N_NODES)
     topomap = _map(descriptor, metric)
-    records = []
-    base = MemoryBase()
-    base.connect()
-    try:
-        outcome = run_episode(base, topomap, descriptor, N_NODES - 1, CONFIG, 600,
-                              observer=lambda r: records.append((r, base.pose)), thirds_contrast=False)
-    finally:
-        base.close()
+    outcome, records = _drive(topomap, descriptor, N_NODES - 1, CONFIG, 600)
     assert outcome.end is EpisodeEnd.ARRIVED, outcome.reason
     assert ("cells of 0.25 m" if metric else "node units") in outcome.belief_setup
     assert all(r.belief is not None for r, _ in records)
@@ -87,16 +94,9 @@ def test_the_belief_places_the_robot_and_it_drives_to_the_goal(metric):
     descriptor = SmoothChain(N_NODES)
     topomap = _map(descriptor, metric)
     config = replace(CONFIG, localiser=replace(CONFIG.localiser, from_belief="initial"))
-    base = MemoryBase(start=Pose2D(2.1, 0.0, 0.0))
-    base.connect()
-    records = []
-    try:
-        outcome = run_episode(base, topomap, descriptor, N_NODES - 1, config, 600,
-                              observer=lambda r: records.append(r), thirds_contrast=False)
-    finally:
-        base.close()
+    outcome, records = _drive(topomap, descriptor, N_NODES - 1, config, 600, start=Pose2D(2.1, 0.0, 0.0))
     assert outcome.end is EpisodeEnd.ARRIVED, outcome.reason
-    placed = next(r for r in records if r.step.state.value == "navigating")
+    placed = next(r for r, _ in records if r.step.state.value == "navigating")
     assert placed.step.reason.startswith("belief: node ") and "of the mass" in placed.step.reason
 
 
@@ -110,12 +110,7 @@ def test_without_a_belief_the_robot_places_itself_by_the_thresholded_match():
     for k in range(N_NODES - 1):
         topomap.add_arc(k, k + 1, 1.0, "sequential", length_m=1.0)
     config = replace(CONFIG, localiser=replace(CONFIG.localiser, from_belief="initial"))
-    base = MemoryBase()
-    base.connect()
-    try:
-        outcome = run_episode(base, topomap, descriptor, N_NODES - 1, config, 30, thirds_contrast=False)
-    finally:
-        base.close()
+    outcome, _ = _drive(topomap, descriptor, N_NODES - 1, config, 30)
     assert outcome.belief_setup.startswith("no belief:")
     assert outcome.belief_setup.endswith("the robot places itself by the thresholded match instead "
                                          "(localiser.from_belief off)")
@@ -151,14 +146,7 @@ def test_the_step_log_keeps_the_views_beside_it(tmp_path):
 
     descriptor = SmoothChain(N_NODES)
     topomap = _map(descriptor, True)
-    records = []
-    base = MemoryBase()
-    base.connect()
-    try:
-        run_episode(base, topomap, descriptor, 4, CONFIG, 80, observer=lambda r: records.append((r, base.pose)),
-                    thirds_contrast=False)
-    finally:
-        base.close()
+    _, records = _drive(topomap, descriptor, 4, CONFIG, 80)
     log = StepLog(tmp_path / "ep.steps.jsonl", topomap.node_ids)
     for record, pose in records:
         log.write(record, pose)

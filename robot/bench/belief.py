@@ -79,7 +79,7 @@ def sweep(base: BeliefConfig, settings: Sequence[str]) -> list[BeliefConfig]:
         parsed = []
         for v in values.split(","):
             try:
-                parsed.append(kind(v.strip()) if kind is not int else int(v.strip(), 10))
+                parsed.append(kind(v.strip()))
             except ValueError:
                 raise BeliefBenchError(f"--set {text!r}: {v.strip()!r} is not a valid {kind.__name__}") from None
         axes.append([(name, v) for v in parsed])
@@ -131,19 +131,16 @@ def load_recorded(episode: Path, config, progress: bool) -> Recorded:
 def run_filter(recorded: Recorded, config: BeliefConfig) -> list[dict]:
     """The episode's steps with the belief of ``config`` in place of the logged one."""
     from core.hal import Odometry
-    from robot.episode.belief import OdometryMotion, map_belief
+    from robot.episode.belief import BeliefTracker, map_belief
 
     belief, why = map_belief(recorded.topomap, config)
     if belief is None:
         raise BeliefBenchError(f"{recorded.name}: {why}")
-    motion = OdometryMotion()
+    tracker = BeliefTracker(belief)
     out = []
     for step, row, (x, y, yaw) in zip(recorded.steps, recorded.similarities, recorded.odometry):
         odometry = None if np.isnan(x) else Odometry(float(x), float(y), float(yaw), 0.0, 0.0, 0.0, 0.0)
-        along, turned = motion.update(odometry)
-        belief.move(along if belief.metric else 0.0, turned)
-        belief.observe(row)
-        snap = belief.snapshot()
+        snap = tracker.step(odometry, row)
         out.append({**step, "belief_top": [[n, m] for n, m in snap.top], "belief_confidence": snap.confidence})
     return out
 

@@ -7,7 +7,9 @@ by its views and its mixing alone, a node or two behind the robot where neighbou
 look alike (the filter's own node-unit step is for image sequences: ``python -m robot.bench vpr
 --sequence``).
 :class:`OdometryMotion` turns successive odometry poses into the filter's motion: the distance
-along the robot's heading (negative when reversing) and the turn. With ``heading_bins`` > 1 the
+along the robot's heading (negative when reversing) and the turn; :class:`BeliefTracker` feeds
+the filter one control step at a time (odometry, then the view), for the episode loop and for
+``python -m robot.bench belief`` alike. With ``heading_bins`` > 1 the
 filter needs the mapping drive's node headings; a map without them gets one direction, and the
 set-up line says so.
 """
@@ -18,7 +20,7 @@ import math
 from dataclasses import replace
 from typing import Optional
 
-from controllers.belief import LikelihoodError, NodeBelief, SimilarityModel
+from controllers.belief import BeliefSnapshot, LikelihoodError, NodeBelief, SimilarityModel
 from controllers.config import BeliefConfig
 from core.hal import Odometry
 from maps.graph import TopoMap
@@ -68,3 +70,18 @@ class OdometryMotion:
         yaw = last.yaw_rad + 0.5 * turned
         dx, dy = odometry.x_m - last.x_m, odometry.y_m - last.y_m
         return dx * math.cos(yaw) + dy * math.sin(yaw), turned
+
+
+class BeliefTracker:
+    """The filter fed step by step: the odometry's motion (its distance only on a metric map,
+    which alone has a scale for it; the turn always), then the view's similarity row."""
+
+    def __init__(self, belief: NodeBelief):
+        self.belief = belief
+        self._motion = OdometryMotion()
+
+    def step(self, odometry: Optional[Odometry], similarities) -> BeliefSnapshot:
+        along, turned = self._motion.update(odometry)
+        self.belief.move(along if self.belief.metric else 0.0, turned)
+        self.belief.observe(similarities)
+        return self.belief.snapshot()

@@ -41,7 +41,7 @@ from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
 from descriptors.base import Descriptor
 from maps.graph import TopoMap
-from robot.episode.belief import OdometryMotion, map_belief
+from robot.episode.belief import BeliefTracker, map_belief
 
 
 @dataclass(frozen=True)
@@ -191,7 +191,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     navigator = Navigator(topomap.graph, node_ids, goal_node, config,
                           node_headings=topomap.odom_headings)
     heading = _Heading()
-    motion = OdometryMotion()
+    tracker = None if belief is None else BeliefTracker(belief)
     snapshot: Optional[BeliefSnapshot] = None
     timings: list[StepTiming] = []
     plans: list[tuple[int, ...]] = []
@@ -219,11 +219,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             describe_ms = _ms(t0)
 
             t0 = time.perf_counter()
-            if belief is not None:
-                along, turned = motion.update(frame.odometry)
-                belief.move(along if belief.metric else 0.0, turned)
-                belief.observe(similarities)
-                snapshot = belief.snapshot()
+            if tracker is not None:
+                snapshot = tracker.step(frame.odometry, similarities)
             # (N, 3): every third against every node, one product (the contrast needs them all)
             thirds = nodes @ views[1:].T
             step = navigator.tick(similarities, thirds=thirds,
