@@ -16,7 +16,10 @@ Feed every frame's descriptor (L2-normalised) in walkthrough order with
    checked by sequence verification (:func:`check_sequence`): frame ``i`` and the
    ``loop_verify_frames`` frames after it must keep matching the old route from the candidate
    on (a position tracked along the old arcs as the robot drives), on average at least
-   ``T_loop_verify`` and better than any other node, and for at least half of the frames.
+   ``T_loop_verify`` and better than any other node, and for at least half of the frames. When
+   the walkthrough ends before that many frames came (a loop drive that stops just past its
+   start), the frames there are are compared with the old route's frames rather than its nodes
+   (:func:`~maps.sequence.check_sequence_on_frames`): too few to average out node spacing.
    Confirmed, it is a loop closure: no node is added, the arc ``last -> matched`` gets weight
    ``M_distance`` and mapping continues from the matched node (the paper's rule). Otherwise (no
    candidate, or a rejected one, logged with its scores) frame ``i`` becomes a new node with the
@@ -52,7 +55,7 @@ import numpy as np
 from core.hal import Pose2D
 from maps.config import MapThresholds
 from maps.graph import MapBuildError, MapError, TopoMap
-from maps.sequence import SequenceCheck, check_sequence
+from maps.sequence import SequenceCheck, check_sequence, check_sequence_on_frames
 
 #: a descriptor's norm may differ from 1 by this much (float16 storage, accumulated rounding)
 NORM_TOLERANCE = 1e-2
@@ -240,6 +243,7 @@ class MapBuilder:
         self._trace: dict[str, list] = {k: [] for k in
                                         ("frame_index", "stamp_s", "sim_to_node", "sim_to_prev", "m_distance", "node")}
         self._node_seq: list[int] = []          # keyframe seq of each node, in row order
+        self._seen: list[np.ndarray] = []       # every processed frame (float16), for short verifications
         self._recent: deque[int] = deque(maxlen=thresholds.loop_exclude_recent_nodes + 1)
         self._inbox: deque[_Frame] = deque()    # checked frames not processed yet
         self._pending: Optional[_Pending] = None
@@ -346,7 +350,7 @@ class MapBuilder:
                 elif self._inbox:
                     self._pending.window.append(self._inbox.popleft())
                 elif final:
-                    self._resolve()
+                    self._resolve(cut_short=True)
                 else:
                     break
             elif self._inbox:
@@ -357,6 +361,7 @@ class MapBuilder:
 
     def _process(self, f: _Frame) -> None:
         self._seq += 1
+        self._seen.append(f.d.astype(np.float16))
         if self._prev_pose is not None and f.true_pose is not None:
             step = self._prev_pose.distance_to(f.true_pose)
             self._travelled_since_m += step
@@ -381,12 +386,21 @@ class MapBuilder:
             self._add_node(f, sim_node, cand, score, None)
         self._done_with(f, sim_node, sim_prev)
 
-    def _resolve(self) -> None:
-        """Decide the waiting candidate, then put the frames it waited for back in line."""
+    def _resolve(self, cut_short: bool = False) -> None:
+        """Decide the waiting candidate, then put the frames it waited for back in line.
+        ``cut_short``: the walkthrough ended before ``loop_verify_frames`` frames came."""
         p, self._pending = self._pending, None
         window = np.stack([p.frame.d] + [w.d for w in p.window])
-        check = check_sequence(window, self._map, p.candidate, eligible=p.eligible,
-                               hops=self.thresholds.loop_verify_hops, min_support=self.thresholds.T_loop_verify)
+        t = self.thresholds
+        if cut_short:
+            earlier = len(self._trace["node"])          # frames processed before the candidate's
+            check = check_sequence_on_frames(
+                window, self._map, p.candidate, frames=np.stack(self._seen[:earlier]),
+                frame_nodes=np.asarray(self._trace["node"]), eligible=p.eligible,
+                hops=t.loop_verify_hops, min_support=t.T_loop_verify)
+        else:
+            check = check_sequence(window, self._map, p.candidate, eligible=p.eligible,
+                                   hops=t.loop_verify_hops, min_support=t.T_loop_verify)
         if check.accepted:
             self._close_loop(p.frame, p.sim_node, p.candidate, p.score, check)
         else:

@@ -390,3 +390,58 @@ def test_merge_needs_the_route_around_both_nodes_to_agree():
     d2 /= np.linalg.norm(d2, axis=1, keepdims=True)
     result = merge_near_duplicates(_chain_map(d2.astype(np.float32)), verified)
     assert result.merged.get(6) == 2 and not result.rejected
+
+
+# -- a walkthrough that ends just past its start ------------------------------------------
+# frames turn at a constant rate in one plane; nodes are a few frames apart, so a revisit frame
+# lies up to half a node spacing from the nearest node but within a frame step of an old frame
+
+def _end_of_walk_thresholds() -> MapThresholds:
+    return thresholds(T_add_new_node=0.9, T_loop_closure=0.997, T_merge=0.997, T_add_distance=0.9999,
+                      loop_min_gap_frames=20, loop_exclude_recent_nodes=2, T_loop_verify=0.997,
+                      loop_verify_frames=12, loop_verify_hops=2)
+
+
+def _circle_walk(laps: float, step_rad: float = 0.03, offset_rad: float = 0.015) -> np.ndarray:
+    """Frames around a full circle and on; the second lap's frames fall between the first's."""
+    n = int(round(2 * math.pi / step_rad))
+    first = arc_sequence(np.full(n - 1, step_rad))
+    more = int(round((laps - 1) * 2 * math.pi / step_rad))
+    second = arc_sequence(np.full(more - 1, step_rad), start_rad=n * step_rad + offset_rad)
+    return np.concatenate([first, second])
+
+
+def test_a_walk_ending_just_past_its_start_closes_on_the_walkthroughs_frames():
+    t = _end_of_walk_thresholds()
+    x = _circle_walk(1.05)                     # ends 0.05 lap past the start
+    topo, log = run(x, t)
+    loops = log.loop_closure_events()
+    assert len(loops) == 1 and loops[0].node_id in (0, 1), [(e.seq, e.node_id) for e in loops]
+    e = loops[0]
+    assert e.verify_frames < t.loop_verify_frames + 1, "the walk ended before the full window"
+    assert e.verify_support >= t.T_loop_verify
+    # the same frames judged against the nodes alone fall short of T_loop_verify
+    window = x[e.seq:]
+    from maps.sequence import check_sequence
+    on_nodes = check_sequence(window, topo, e.node_id, eligible=topo.node_ids.tolist(), hops=2,
+                              min_support=t.T_loop_verify)
+    assert on_nodes.support < t.T_loop_verify <= e.verify_support
+
+
+def test_a_short_window_that_matches_a_look_alike_stretch_is_still_rejected():
+    rng = np.random.default_rng(7)
+    route = rng.standard_normal((6, 32)).astype(np.float32)
+    route /= np.linalg.norm(route, axis=1, keepdims=True)
+    topo = _chain_map(route)
+    frames = np.repeat(route, 4, axis=0)                 # 4 frames at each node
+    frame_nodes = np.repeat(np.arange(6), 4)
+    from maps.sequence import check_sequence_on_frames
+    near = frames[8:12] + 0.05 * rng.standard_normal((4, 32)).astype(np.float32)   # frames of node 2
+    near /= np.linalg.norm(near, axis=1, keepdims=True)
+    kw = dict(frames=frames, frame_nodes=frame_nodes, eligible=range(6), hops=1, min_support=0.9)
+    assert check_sequence_on_frames(near, topo, 2, **kw).accepted
+    # the same window offered as a revisit of node 4: the better match lies outside its stretch
+    wrong = check_sequence_on_frames(near, topo, 4, **kw)
+    assert not wrong.accepted and wrong.rival > wrong.support
+    with pytest.raises(MapBuildError, match="frame_nodes"):
+        check_sequence_on_frames(near, topo, 2, **{**kw, "frame_nodes": frame_nodes[:-1]})

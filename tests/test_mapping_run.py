@@ -153,3 +153,26 @@ def test_ctrl_c_stops_cleanly_and_leaves_no_partial_recording(tmp_path):
     assert "interrupted" in err and "Traceback" not in err
     assert not out.exists()
     assert not any(p.name.startswith(".tiny") for p in tmp_path.iterdir())
+
+
+def test_a_drive_starting_just_past_a_corner_closes_its_loop(tmp_path):
+    """The walkthrough begins 0.3 m past a turn and ends 0.6 m past its start: the frames past the
+    start are all the revisit there is, and the loop must still close onto the start."""
+    import yaml
+    spec = yaml.safe_load(TINY.read_text())
+    spec["name"] = "tiny-corner"
+    spec["routes"]["walkthrough"] = [[1.3, 1], [5, 1], [5, 3], [1, 3], [1, 1], [1.9, 1]]
+    world = tmp_path / "tiny_corner.yaml"
+    world.write_text(yaml.safe_dump(spec))
+    out = tmp_path / "run"
+    proc = _run("--mode", "map", "--world", str(world), "--out", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    loaded = load_map(out / "map")
+    closures = loaded.log.loop_closure_events()
+    assert len(closures) == 1, [(e.seq, e.prev_node, e.node_id) for e in closures]
+    closure = closures[0]
+    frames = read_recording(out)
+    seen_at = frames[closure.seq].true_pose
+    matched = loaded.topomap.node(closure.node_id).true_pose
+    assert seen_at.distance_to(matched) < 0.5, (seen_at, matched)
+    assert abs(math.remainder(seen_at.yaw_rad - matched.yaw_rad, 2 * math.pi)) < math.radians(30)
