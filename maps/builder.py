@@ -36,7 +36,13 @@ builder, so sampling a video with ``--every N`` changes them; ``frame_index`` is
 (e.g. the video frame number) stored with each node.
 
 The walkthrough's end adds no node: its last frames are still similar to the last node (that is
-why no node was added), so that node already stands for them.
+why no node was added), so that node already stands for them. A loop drive that stops just past
+its start may never have offered the revisit as a candidate (its few frames there came between
+node decisions, or each stood half a node spacing from node 0): at :meth:`MapBuilder.finish`,
+unless the last decision was a loop closure, the first of the last ``loop_verify_frames`` frames
+that matches an eligible earlier *frame* above ``T_loop_closure`` starts a window to the end,
+and when that window follows the old route (:func:`~maps.sequence.check_sequence_on_frames`)
+the last node is linked to the matched frame's node by a loop-closure arc.
 
 :func:`maps.pipeline.build_map` is the batch form for a recorded walkthrough: calibrate (if
 asked), build, optimise. Loop-closure candidates are verified by :mod:`maps.sequence`.
@@ -328,6 +334,7 @@ class MapBuilder:
         if self._fed == 0:
             raise MapBuildError("no frames were fed: a map needs at least one frame")
         self._drain(final=True)
+        self._close_at_end()
         self._finished = True
         log = BuildLog(
             thresholds=self.thresholds, events=tuple(self._events),
@@ -479,6 +486,50 @@ class MapBuilder:
                     f"was rejected: {self._check_note(check, t)}")
         self._events.append(MapEvent(kind="node", node_id=node, loop_rejected=check is not None, **common,
                                      reason=f"{why}; {note}: added node {node} (arc weight {m})"))
+
+    def _close_at_end(self) -> None:
+        """The end-of-walk loop closure (module docstring): the walk ended on its own route."""
+        t = self.thresholds
+        if t.loop_verify_frames == 0 or not self._events or self._events[-1].kind == "loop_closure":
+            return
+        first_tail = max(self._seq + 1 - t.loop_verify_frames, 0)
+        before = first_tail - t.loop_min_gap_frames        # earlier frames count from here back
+        node_seq = np.asarray(self._node_seq)
+        ids = self._map.node_ids
+        eligible = ids[(node_seq <= before) & ~np.isin(ids, np.asarray(self._recent))]
+        frame_nodes = np.asarray(self._trace["node"])
+        old = np.isin(frame_nodes, eligible)
+        old[max(before + 1, 0):] = False
+        if not old.any():
+            return
+        seen = np.stack(self._seen)
+        sims = seen[first_tail:].astype(np.float32) @ seen[old].astype(np.float32).T
+        best = sims.max(axis=1)
+        above = np.nonzero(best > t.T_loop_closure)[0]
+        if above.size == 0:
+            return
+        k = int(above[0])
+        cand = int(frame_nodes[old][int(np.argmax(sims[k]))])
+        check = check_sequence_on_frames(seen[first_tail + k:], self._map, cand, frames=seen[:first_tail],
+                                         frame_nodes=frame_nodes[:first_tail], eligible=eligible.tolist(),
+                                         hops=t.loop_verify_hops, min_support=t.T_loop_verify)
+        if not check.accepted:
+            return
+        prev, m = self._node, self._m_distance
+        had = self._map.arc(prev, cand) if self._map.has_arc(prev, cand) else None
+        now = self._map.add_arc(prev, cand, weight=m, kind="loop_closure", n_frames=self._seq - self._anchor_seq,
+                                length_m=self._travelled_since_m if self._with_poses else None)
+        self._events.append(MapEvent(
+            kind="loop_closure", seq=self._seq, frame_index=int(self._trace["frame_index"][-1]),
+            stamp_s=float(self._trace["stamp_s"][-1]), node_id=cand, prev_node=prev, m_distance=m,
+            frames_since_prev=self._seq - self._anchor_seq, loop_candidate=cand, loop_score=float(best[k]),
+            travelled_m=self._travelled_since_m if self._with_poses else None, new_arc=now != had,
+            verify_frames=check.frames, verify_support=check.support, verify_rival=check.rival,
+            reason=f"the walkthrough ended on its own route: from its frame {self._trace['frame_index'][first_tail + k]} "
+                   f"on, its last frames match earlier frames at node {cand} ({best[k]:.3f} > T_loop_closure "
+                   f"{t.T_loop_closure:.3f}), confirmed: {self._check_note(check, t)}; linked {prev} -> {cand} "
+                   f"(weight {m})"))
+        self._reach(cand, self._map.descriptor(cand))
 
     def _best_loop_candidate(self, d: np.ndarray) -> tuple[Optional[int], Optional[float], np.ndarray]:
         """The most similar node allowed by the exclusion rule, its score, and the rows of all

@@ -7,6 +7,7 @@ cosine; expected node frames come from those cosines, not from the builder.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import networkx as nx
 import numpy as np
@@ -445,3 +446,23 @@ def test_a_short_window_that_matches_a_look_alike_stretch_is_still_rejected():
     assert not wrong.accepted and wrong.rival > wrong.support
     with pytest.raises(MapBuildError, match="frame_nodes"):
         check_sequence_on_frames(near, topo, 2, **{**kw, "frame_nodes": frame_nodes[:-1]})
+
+
+def test_a_revisit_that_never_became_a_candidate_closes_when_the_walk_ends():
+    # the second lap passes its node decision half a node spacing from nodes 0 and 1 (below
+    # T_loop_closure there) and ends before the next decision; its frames match old frames
+    t = _end_of_walk_thresholds()
+    step = 0.03
+    first = arc_sequence(np.full(200, step))                       # 0 .. 6.0 rad
+    second = arc_sequence(np.full(9, step), start_rad=2 * math.pi + 8 * step)
+    x = np.concatenate([first, second])
+    topo, log = run(x, t)
+    assert not log.rejected_loop_events(), "no candidate came up at a node decision"
+    loops = log.loop_closure_events()
+    assert len(loops) == 1 and loops[0].seq == len(x) - 1 and loops[0].node_id == 0
+    assert "ended on its own route" in loops[0].reason
+    assert topo.arc(loops[0].prev_node, 0).kind == "loop_closure"
+    assert loops[0].verify_support >= t.T_loop_verify > loops[0].verify_rival
+    # the paper's unverified rule has no end-of-walk closure
+    _, paper = run(x, replace(t, loop_verify_frames=0))
+    assert not paper.loop_closure_events()

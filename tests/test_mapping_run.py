@@ -176,3 +176,18 @@ def test_a_drive_starting_just_past_a_corner_closes_its_loop(tmp_path):
     matched = loaded.topomap.node(closure.node_id).true_pose
     assert seen_at.distance_to(matched) < 0.5, (seen_at, matched)
     assert abs(math.remainder(seen_at.yaw_rad - matched.yaw_rad, 2 * math.pi)) < math.radians(30)
+
+
+def test_the_warehouse_walk_closes_its_loop_onto_its_start(tmp_path):
+    """The warehouse's walkthrough starts 0.3 m past a corner and ends 0.6 m past its start; its
+    only revisit is those last frames, which no node decision offers as a candidate."""
+    out = tmp_path / "warehouse"
+    proc = _run("--mode", "map", "--world", "warehouse", "--out", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    loaded = load_map(out / "map")
+    closures = loaded.log.loop_closure_events()
+    assert len(closures) == 1, [(e.seq, e.prev_node, e.node_id) for e in closures]
+    start = loaded.topomap.node(0).true_pose
+    matched = loaded.topomap.node(closures[0].node_id).true_pose
+    assert start.distance_to(matched) < 1.5, matched
+    assert loaded.topomap.arc(closures[0].prev_node, closures[0].node_id).kind == "loop_closure"
