@@ -223,6 +223,8 @@ class LocaliserConfig:
     #: view's right node scored 0.41 with a 0.11 margin).
     first_view_margin: float = 0.05
     first_view_slack: float = 0.05
+    #: False: no first-view rule (the paper).
+    first_view: bool = True
     #: Not in the paper. A re-localisation first searches only the nodes within this many arcs
     #: (either direction) of the *anchor*, the last node the robot confirmed by driving along its
     #: plan (or its initial localisation): it has not moved far since, and under other lighting
@@ -233,6 +235,10 @@ class LocaliserConfig:
     #: where every node needs ``t_milestone`` (the plan's stretch gets no lower threshold there).
     #: 0: search the whole map at once (the paper's global localisation).
     relocalise_hops: int = 4
+    #: Not in the paper. A re-localisation accepts a node of the plan's stretch around where the
+    #: robot got lost above ``t_lost`` instead of ``t_milestone``: it has not moved far, and other
+    #: lighting lowers every score. False: ``t_milestone`` for every node (the paper).
+    relocalise_expected: bool = True
     #: Not in the paper; needs the map's odometry headings (maps made from a recording). During
     #: the local search a node counts only while the robot faces the way the mapping drive faced
     #: there, to within this many degrees: the heading the robot had when it confirmed the anchor,
@@ -273,7 +279,8 @@ class LocaliserConfig:
         check_count("neighbourhood_hops", self.neighbourhood_hops, 0)
         for name in ("min_margin", "second_look_tolerance", "first_view_margin", "first_view_slack"):
             check_range(name, getattr(self, name), 0.0, 1.0, high_open=True)
-        check_bool("second_look", self.second_look)
+        for name in ("second_look", "first_view", "relocalise_expected"):
+            check_bool(name, getattr(self, name))
 
 
 @dataclass(frozen=True)
@@ -414,6 +421,20 @@ class NavigationConfig:
         check_count("no_vote_patience_ticks", self.no_vote_patience_ticks, 1)
         check_count("blind_forward_ticks", self.blind_forward_ticks, 0)
         check_count("max_relocalisations", self.max_relocalisations, 0)
+
+    def as_published(self) -> "NavigationConfig":
+        """The paper's method as published: every option marked "not in the paper" off, the
+        rest (thresholds, filter, speeds, windows, patience) as configured. The harness's
+        ``paper`` method, so the table compares the paper's method, ours and the baseline on the
+        same trials. Its "rotate and retry until something does" stays bounded by
+        ``full_turn_rad``: a second turn shows the same views."""
+        return replace(
+            self,
+            localiser=replace(self.localiser, min_margin=0.0, second_look=False, first_view=False,
+                              relocalise_hops=0, relocalise_expected=False,
+                              relocalise_heading_tolerance_deg=180.0, from_belief="off"),
+            supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0),
+            hold_action_between_votes=False, blind_forward_ticks=0, heading_hints=False)
 
     def with_thresholds(self, thresholds: Thresholds) -> "NavigationConfig":
         """The same configuration with other thresholds (e.g. ``Thresholds.from_map(...)``)."""

@@ -278,7 +278,8 @@ class Navigator:
                                 self.config.localiser, expected=expected,
                                 t_expected=self.config.thresholds.t_lost,
                                 neighbourhoods=self._neighbourhoods, t_floor=self.config.thresholds.t_lost,
-                                first_view=first_view, first_view_nodes=self._goal_reachers)
+                                first_view=first_view and self.config.localiser.first_view,
+                                first_view_nodes=self._goal_reachers)
 
     def _by_belief(self) -> bool:
         """Whether this (re-)localisation places the robot from the belief (``from_belief``)."""
@@ -374,7 +375,7 @@ class Navigator:
         # Prefer the stretch of the plan the robot was driving: those nodes are accepted as the
         # best of the map above t_lost, any other node needs t_milestone (see InitialLocaliser).
         expected: Tuple[NodeId, ...] = ()
-        if decision is not None and self._plan:
+        if decision is not None and self._plan and self.config.localiser.relocalise_expected:
             sup = self.config.supervisor
             i = decision.path_index
             expected = self._plan[max(0, i - sup.window_behind): i + sup.window_ahead + 2]

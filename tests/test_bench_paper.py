@@ -391,3 +391,22 @@ def test_episodes_record_the_configuration_and_another_one_is_not_reused(serial_
     assert paper._reusable(out, trial) is not None
     # the same trial under another configuration must run again, not reuse the old episode
     assert paper._reusable(out, dc_replace(trial, config_digest=config_digest(changed))) is None
+
+
+def test_the_papers_method_runs_as_its_own_method(serial_run, tmp_path):
+    from dataclasses import replace as dc_replace
+
+    from robot.bench.trials import Trial, resolved_trial, run_trial
+
+    out, _ = serial_run
+    episode = json.loads(next((out / "episodes").glob("*_ours_0.json")).read_text())
+    sx, sy, syaw = load_world(TINY).routes.evaluation["short"].start
+    trial = dc_replace(Trial(**resolved_trial(episode["trial"], out)), method="paper", trace_png=None,
+                       appearance_seed=0, start_x_m=sx, start_y_m=sy, start_yaw_deg=syaw)
+    log = tmp_path / "paper.jsonl"
+    result = run_trial(trial, step_log=str(log))
+    assert result["trial"]["method"] == "paper" and result["metrics"]["steps"] > 0
+    reasons = [json.loads(line)["reason"] for line in log.read_text().splitlines()]
+    assert len(reasons) == result["metrics"]["steps"]
+    for ours in ("the map turned", "second look", "ambiguous: margin"):
+        assert not any(ours in r for r in reasons), ours

@@ -625,3 +625,32 @@ def test_with_the_belief_the_robot_places_itself_and_drives_the_loop(loop):
         last, pose = pose, drive(pose, step.velocity, DT_S)
     assert nav.visited_nodes[0] in (ids[1], ids[2], ids[3])
     assert step.state is NavState.ARRIVED and pose.distance_to(poses[goal]) < 1.0
+
+
+def test_the_published_method_relocalises_only_above_t_milestone():
+    # the view matches node 4, on the stretch the robot was driving, at 0.6: above t_lost, below
+    # t_milestone. Ours (even with the paper's global search) accepts it there; the paper's
+    # method as published does not, turns once and gives up
+    from dataclasses import replace
+    view = np.full(10, 0.1)
+    view[4] = 0.6
+    assert CONFIG.thresholds.t_lost < 0.6 < CONFIG.thresholds.t_milestone
+    ours = replace(CONFIG, localiser=replace(CONFIG.localiser, relocalise_hops=0))
+    steps = _lost_then_relocalise(ours, view)
+    assert steps[-1].state is NavState.NAVIGATING and steps[-1].planned_path[0] == 4
+    published = CONFIG.as_published()
+    steps = _lost_then_relocalise(published, view)
+    assert steps[-1].state is not NavState.NAVIGATING
+    relocalising = [s for s in steps if s.state is NavState.RELOCALISING]
+    assert sum(s.velocity.w_radps for s in relocalising) * DT_S >= 2 * math.pi, "one full turn first"
+
+
+def test_as_published_switches_off_every_addition_and_keeps_the_rest():
+    p = CONFIG.as_published()
+    loc = p.localiser
+    assert (loc.min_margin, loc.second_look, loc.first_view, loc.relocalise_hops, loc.relocalise_expected,
+            loc.relocalise_heading_tolerance_deg, loc.from_belief) == (0.0, False, False, 0, False, 180.0, "off")
+    assert not p.supervisor.confirm_best_of_map and p.supervisor.goal_settle_ticks == 0
+    assert not p.heading_hints and p.blind_forward_ticks == 0 and not p.hold_action_between_votes
+    assert p.thresholds == CONFIG.thresholds and p.filter == CONFIG.filter and p.speeds == CONFIG.speeds
+    assert p.supervisor.window_ahead == CONFIG.supervisor.window_ahead

@@ -71,8 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--routes", default=",".join(DEFAULT_ROUTES),
                         help="comma-separated WORLD:ROUTE list (default: %(default)s); WORLD may be a world file")
     parser.add_argument("--methods", default=",".join(DEFAULT_METHODS),
-                        help="comma-separated: ours, sptm, ours-hints, ours-no-hints (ours with the turn hints from "
-                             "the map's odometry forced on / off; default: ours,sptm)")
+                        help="comma-separated: ours, sptm, paper (the paper's method as published, none of our "
+                             "additions), ours-hints, ours-no-hints (ours with the turn hints from the map's odometry "
+                             "forced on / off; default: ours,sptm)")
     parser.add_argument("--sparsity", default=",".join(f"{s:g}" for s in DEFAULT_SPARSITY_LEVELS),
                         help="map sparsity levels of the study (default %(default)s); 'none' skips the study")
     parser.add_argument("--sparsity-route", default="hospital:moderate",

@@ -26,10 +26,11 @@ PAPER_SR = {
 METHOD_LABELS = {"ours": "Ours (AnyLoc-style VLAD + two-cycle voter)",
                  "ours-hints": "Ours with the turn hints from the map's odometry",
                  "ours-no-hints": "Ours without the turn hints",
+                 "paper": "The paper's method as published (none of our additions)",
                  "sptm": "SPTM-style baseline (learned action head)"}
 PAPER_LABELS = {"ours": "Paper: Ours", "sptm": "Paper: ResNet+AnyLoc"}
 COLORS = {"ours": (0.12, 0.47, 0.71), "ours-hints": (0.17, 0.63, 0.17), "ours-no-hints": (0.58, 0.40, 0.74),
-          "sptm": (0.85, 0.37, 0.01)}
+          "paper": (0.55, 0.55, 0.55), "sptm": (0.85, 0.37, 0.01)}
 
 
 def summarise_episodes(episodes: Sequence[dict]) -> dict:
@@ -88,7 +89,7 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
     for e in main:
         if _route_id(e) not in routes:
             routes.append(_route_id(e))
-    methods = [m for m in ("ours", "ours-hints", "ours-no-hints", "sptm") if m in (planned_methods or ())
+    methods = [m for m in ("ours", "ours-hints", "ours-no-hints", "paper", "sptm") if m in (planned_methods or ())
                or any(e["trial"]["method"] == m for e in main)]
     summary = {f"{w}:{r}": {m: summarise_episodes([e for e in main if _route_id(e) == (w, r)
                                                     and e["trial"]["method"] == m]) for m in methods}

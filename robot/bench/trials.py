@@ -34,9 +34,10 @@ APPEARANCE_SEED_BASE = 1
 TRAJECTORY_EVERY = 10
 
 #: "ours": the two-cycle voter with the configuration as given; "sptm": the learned baseline;
+#: "paper": the paper's method as published (NavigationConfig.as_published, raw-cosine thirds);
 #: "ours-hints" / "ours-no-hints": ours with the turn hints from the map's odometry forced on / off
 #: (navigation.heading_hints; on in the default configuration), for the ablation.
-METHODS = ("ours", "sptm", "ours-hints", "ours-no-hints")
+METHODS = ("ours", "sptm", "paper", "ours-hints", "ours-no-hints")
 #: What the harness runs unless --methods says otherwise (the paper's comparison).
 DEFAULT_METHODS = ("ours", "sptm")
 
@@ -47,7 +48,7 @@ class Trial:
 
     world: str                 # world name or path
     route: str
-    method: str                # "ours" (two-cycle voter), "sptm" (learned baseline), "ours-hints", "ours-no-hints"
+    method: str                # one of METHODS
     trial: int                 # 0-based trial number on this route
     map_dir: str
     appearance_seed: int
@@ -203,6 +204,9 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
     navigation = config.navigation
     if trial.method in ("ours-hints", "ours-no-hints"):
         navigation = replace(navigation, heading_hints=trial.method == "ours-hints")
+    if trial.method == "paper":      # as published: none of our additions, raw cosines for the voter
+        navigation = navigation.as_published()
+        config = replace(config, episode=replace(config.episode, thirds_contrast=False))
     start = Pose2D(trial.start_x_m, trial.start_y_m, math.radians(trial.start_yaw_deg))
     try:
         episode = SimEpisode(spec, trial.map_dir, route=trial.route, start=start,
