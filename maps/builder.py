@@ -453,9 +453,11 @@ class MapBuilder:
                 f"{check.support:.3f} (T_loop_verify {t.T_loop_verify:.3f}) vs {rival}, best in "
                 f"{check.wins:.0%} of them")
 
-    def _close_loop(self, f: _Frame, sim_node: float, cand: int, score: float, check: SequenceCheck) -> None:
+    def _close_loop(self, f: _Frame, sim_node: float, cand: int, score: float, check: SequenceCheck,
+                    why: Optional[str] = None) -> None:
         t = self.thresholds
-        common, why = self._common(f, sim_node, cand, score, check)
+        common, node_why = self._common(f, sim_node, cand, score, check)
+        why = why or node_why
         prev, m = self._node, self._m_distance
         had = self._map.arc(prev, cand) if self._map.has_arc(prev, cand) else None
         now = self._map.add_arc(prev, cand, weight=m, kind="loop_closure", n_frames=common["frames_since_prev"],
@@ -515,21 +517,12 @@ class MapBuilder:
                                          hops=t.loop_verify_hops, min_support=t.T_loop_verify)
         if not check.accepted:
             return
-        prev, m = self._node, self._m_distance
-        had = self._map.arc(prev, cand) if self._map.has_arc(prev, cand) else None
-        now = self._map.add_arc(prev, cand, weight=m, kind="loop_closure", n_frames=self._seq - self._anchor_seq,
-                                length_m=self._travelled_since_m if self._with_poses else None)
-        self._events.append(MapEvent(
-            kind="loop_closure", seq=self._seq, frame_index=int(self._trace["frame_index"][-1]),
-            stamp_s=float(self._trace["stamp_s"][-1]), node_id=cand, prev_node=prev, m_distance=m,
-            frames_since_prev=self._seq - self._anchor_seq, loop_candidate=cand, loop_score=float(best[k]),
-            travelled_m=self._travelled_since_m if self._with_poses else None, new_arc=now != had,
-            verify_frames=check.frames, verify_support=check.support, verify_rival=check.rival,
-            reason=f"the walkthrough ended on its own route: from its frame {self._trace['frame_index'][first_tail + k]} "
-                   f"on, its last frames match earlier frames at node {cand} ({best[k]:.3f} > T_loop_closure "
-                   f"{t.T_loop_closure:.3f}), confirmed: {self._check_note(check, t)}; linked {prev} -> {cand} "
-                   f"(weight {m})"))
-        self._reach(cand, self._map.descriptor(cand))
+        last = _Frame(self._prev_desc, int(self._trace["frame_index"][-1]), float(self._trace["stamp_s"][-1]),
+                      self._prev_pose)
+        self._close_loop(last, float(self._trace["sim_to_node"][-1]), cand, float(best[k]), check,
+                         why=f"the walkthrough ended on its own route: from its frame "
+                             f"{self._trace['frame_index'][first_tail + k]} on, its last frames match earlier "
+                             f"frames at node {cand}")
 
     def _best_loop_candidate(self, d: np.ndarray) -> tuple[Optional[int], Optional[float], np.ndarray]:
         """The most similar node allowed by the exclusion rule, its score, and the rows of all
