@@ -1,8 +1,9 @@
 """The stack's configuration: one dataclass per component, read once at the entry point.
 
-``configs/default.yaml`` holds every section; a user file given with ``--config`` is read
-instead of it, and fields it leaves out keep their defaults. Each component's dataclass says
-why each field exists; errors name the file and the dotted field.
+``configs/default.yaml`` holds every section; a user file given with ``--config`` is read over
+it, so fields the file leaves out keep the values of ``configs/default.yaml`` (the stack's tuned
+settings, not only the dataclasses' neutral defaults). Each component's dataclass says why each
+field exists; errors name the file and the dotted field.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from controllers.config import NavigationConfig
-from core.configfile import load_config
+from core.configfile import from_mapping, load_config, read_yaml_mapping
 from core.hal import VelocityLimits
 from core.validate import check_at_least, check_count, check_range
 from limo.config import LimoSerialConfig
@@ -66,5 +67,17 @@ class StackConfig:
 
 
 def load_stack_config(path: str | Path | None = None) -> StackConfig:
-    """Read the stack configuration (``configs/default.yaml`` when ``path`` is None)."""
-    return load_config(StackConfig, DEFAULT_CONFIG if path is None else path)
+    """Read the stack configuration: ``configs/default.yaml``, with the file at ``path`` (when
+    given) read over it, section by section down to single fields."""
+    if path is None:
+        return load_config(StackConfig, DEFAULT_CONFIG)
+    return from_mapping(StackConfig, _merged(read_yaml_mapping(DEFAULT_CONFIG), read_yaml_mapping(path)),
+                        source=str(path))
+
+
+def _merged(base: dict, over: dict) -> dict:
+    """``over`` read over ``base``: mappings merge key by key, anything else replaces."""
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
