@@ -173,6 +173,11 @@ class SupervisorConfig:
     #: improved for this many ticks (or falls clearly below its peak): a view well before the
     #: goal node may already pass ``t_milestone``. 0: arrive at the first confirmation.
     goal_settle_ticks: int = 10
+    #: Not in the paper. With a goal image, the settle after the goal node's confirmation
+    #: stops where the view matches the goal image itself best, not where the goal node's
+    #: picture does: that picture was taken up to half an arc from the goal. False: the goal
+    #: node's score alone decides arrival.
+    goal_image_arrival: bool = True
 
     def __post_init__(self) -> None:
         check_count("window_behind", self.window_behind, 0)
@@ -181,6 +186,7 @@ class SupervisorConfig:
         check_count("progress_patience_ticks", self.progress_patience_ticks, 1)
         check_count("goal_settle_ticks", self.goal_settle_ticks, 0)
         check_bool("confirm_best_of_map", self.confirm_best_of_map)
+        check_bool("goal_image_arrival", self.goal_image_arrival)
 
 
 #: the values of ``LocaliserConfig.from_belief``
@@ -433,7 +439,8 @@ class NavigationConfig:
             localiser=replace(self.localiser, min_margin=0.0, second_look=False, first_view=False,
                               relocalise_hops=0, relocalise_expected=False,
                               relocalise_heading_tolerance_deg=180.0, from_belief="off"),
-            supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0),
+            supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0,
+                               goal_image_arrival=False),
             hold_action_between_votes=False, blind_forward_ticks=0, heading_hints=False)
 
     def with_thresholds(self, thresholds: Thresholds) -> "NavigationConfig":

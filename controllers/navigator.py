@@ -48,7 +48,10 @@ States (:class:`NavState`):
   node is confirmed, when the drive turned from it to the target by at least
   ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on the odometry heading)
   before the voter steers again: at corners the target is beside the field of view.
-* ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero.
+* ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero. With a
+  goal image (``goal_score`` passed to :meth:`Navigator.tick`) and
+  ``supervisor.goal_image_arrival``, the settle after the goal node's confirmation stops
+  where the view's similarity to the goal image itself peaked above ``t_milestone``.
 * FAILED (final): cannot place itself, goal unreachable, or too many re-localisations;
   ``reason`` says which; velocity zero.
 """
@@ -244,7 +247,8 @@ class Navigator:
     def tick(self, similarities: np.ndarray, thirds: ThirdsInput = None,
              heading_rad: Optional[float] = None,
              thirds_contrast: Optional[np.ndarray] = None, policy: PolicyInput = None,
-             belief: Optional[BeliefSnapshot] = None) -> NavigationStep:
+             belief: Optional[BeliefSnapshot] = None,
+             goal_score: Optional[float] = None) -> NavigationStep:
         """One control tick.
 
         ``similarities``: the current full view's cosine similarity to every node (column order
@@ -256,7 +260,9 @@ class Navigator:
         ``policy``: optional ``policy(target_node) -> Action`` for this tick's view; when given it
         replaces the voter while navigating (a learned baseline; ``thirds`` are not needed then).
         ``belief``: the belief over the map after this view (:meth:`controllers.belief.NodeBelief.snapshot`),
-        which places the robot when ``localiser.from_belief`` asks for it.
+        which places the robot when ``localiser.from_belief`` asks for it. ``goal_score``: the
+        view's cosine similarity to the goal image, when the goal is an image: the final approach
+        stops where the view matches it best (``supervisor.goal_image_arrival``).
         """
         try:
             row = similarity_row(similarities, len(self.node_ids), "similarities")
@@ -269,7 +275,7 @@ class Navigator:
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
         self._contrast = thirds_contrast
-        return self._navigate_tick(row, thirds, heading_rad, policy)
+        return self._navigate_tick(row, thirds, heading_rad, policy, goal_score)
 
     # -- localisation ---------------------------------------------------------------------
 
@@ -430,8 +436,9 @@ class Navigator:
     # -- navigation -----------------------------------------------------------------------
 
     def _navigate_tick(self, row: np.ndarray, thirds: ThirdsInput,
-                       heading_rad: Optional[float], policy: PolicyInput = None) -> NavigationStep:
-        decision = self._supervisor.tick(row)
+                       heading_rad: Optional[float], policy: PolicyInput = None,
+                       goal_score: Optional[float] = None) -> NavigationStep:
+        decision = self._supervisor.tick(row, goal_score=goal_score)
         if decision.confirmed_node is not None:
             self._set_anchor(decision.confirmed_node, heading_rad)
             self._hint = None if heading_rad is None else (decision.confirmed_node, float(heading_rad))

@@ -77,6 +77,7 @@ class SupervisorDecision:
     confirmed_node: Optional[NodeId]       # a node confirmed (reached) this tick, if any
     lost_ticks: int                        # consecutive ticks with the window below t_lost
     reason: str
+    goal_image_score: Optional[float] = None   # filtered similarity to the goal image (image goals)
 
     @property
     def relocalise(self) -> bool:
@@ -126,6 +127,11 @@ class NodeSwitchSupervisor:
         self._goal_peak: Optional[float] = None
         self._goal_flat = 0
         self._goal_reason = ""
+        # the goal image's filtered score and its peak during the final approach (image goals)
+        self._image_filter = SimilarityFilter(1, config.filter)
+        self._image: Optional[float] = None
+        self._image_peak: Optional[float] = None
+        self._image_flat = 0
 
     @property
     def index(self) -> int:
@@ -148,10 +154,18 @@ class NodeSwitchSupervisor:
         return range(max(0, self._index - cfg.window_behind),
                      min(last, self._index + cfg.window_ahead) + 1)
 
-    def tick(self, similarities: np.ndarray) -> SupervisorDecision:
-        """Filter one similarity row (current view against every node) and decide."""
+    def tick(self, similarities: np.ndarray, goal_score: Optional[float] = None) -> SupervisorDecision:
+        """Filter one similarity row (current view against every node) and decide.
+
+        ``goal_score``: the view's similarity to the goal image, when the goal is an image (see
+        :meth:`_image_arrival`)."""
         row = similarity_row(similarities, len(self.node_ids))
         filtered = self.filter.update(row)
+        if goal_score is not None and self.config.supervisor.goal_image_arrival:
+            score = float(goal_score)
+            if not np.isfinite(score):
+                raise ValueError(f"goal_score must be finite, got {goal_score!r}")
+            self._image = float(self._image_filter.update(np.array([score]))[0])
         if self._final is not None:
             return replace(self._final, confirmed_node=None)
         path_scores = filtered[self._path_columns]
@@ -222,11 +236,22 @@ class NodeSwitchSupervisor:
         wide), so stopping at the first pass stops short. The robot keeps steering at the goal
         while the score sets new highs; it arrives when the score has not improved for
         ``goal_settle_ticks`` ticks or has fallen clearly below its peak (it is passing the
-        node). Standing still at the goal arrives after ``goal_settle_ticks``.
+        node). Standing still at the goal arrives after ``goal_settle_ticks``. With a goal image
+        (``supervisor.goal_image_arrival``) its own score takes over once it passed
+        ``t_milestone`` (:meth:`_image_arrival`).
         """
         last = len(self.path) - 1
         score = float(path_scores[last])
         cfg = self.config.supervisor
+        by_image = self._image_arrival()
+        if by_image:
+            return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[last],
+                                f"{self._goal_reason}; {by_image}")
+        if self._image_peak is not None and self._image_peak > self.config.thresholds.t_milestone:
+            return self._decision(self._state, path_scores, None,
+                                  f"goal in sight: the goal image scores {self._image:.3f}, peak "
+                                  f"{self._image_peak:.3f}, {self._image_flat}/{cfg.goal_settle_ticks} "
+                                  "ticks without improving")
         if score > self._goal_peak + 0.005:
             self._goal_peak, self._goal_flat = score, 0
         else:
@@ -238,6 +263,32 @@ class NodeSwitchSupervisor:
         return self._decision(self._state, path_scores, None,
                               f"goal in sight: filtered {score:.3f}, peak {self._goal_peak:.3f}, "
                               f"{self._goal_flat}/{cfg.goal_settle_ticks} ticks without improving")
+
+    def _image_arrival(self) -> str:
+        """Whether the view has passed the place the goal image shows (a reason), or "".
+
+        The goal node's picture was taken somewhere near the goal, not at it, so once the goal
+        node is confirmed the final approach follows the view's filtered similarity to the goal
+        image itself: it arrives once that score has passed ``t_milestone`` (the view matches
+        the goal image as well as a view matches the node it stands at) and has not improved
+        for ``goal_settle_ticks`` ticks or has fallen clearly below its peak (the robot is
+        passing the place). Its peak is tracked from the confirmation on: before it, a view of
+        the corridor a metre short of the goal can score a passing high (identical doors).
+        """
+        if self._image is None:
+            return ""
+        score, cfg = self._image, self.config.supervisor
+        if self._image_peak is None or score > self._image_peak + 0.005:
+            self._image_peak, self._image_flat = score, 0
+            return ""
+        self._image_flat += 1
+        level = self.config.thresholds.t_milestone
+        if self._image_peak <= level:
+            return ""
+        if self._image_flat >= cfg.goal_settle_ticks or score < self._image_peak - 0.03:
+            return (f"the goal image: filtered {score:.3f}, peak {self._image_peak:.3f} "
+                    f"(> t_milestone {level:.3f}), the view is at the place it shows")
+        return ""
 
     def _confirmable_ahead(self, path_scores: np.ndarray, here: float) -> Optional[int]:
         """The path position ahead (inside the window) to confirm this tick, if any."""
@@ -270,7 +321,8 @@ class NodeSwitchSupervisor:
             target_score=float(path_scores[i + 1]) if target is not None else None,
             window_nodes=tuple(self.path[p] for p in window),
             window_scores=tuple(float(path_scores[p]) for p in window),
-            confirmed_node=confirmed, lost_ticks=self._lost_ticks, reason=reason)
+            confirmed_node=confirmed, lost_ticks=self._lost_ticks, reason=reason,
+            goal_image_score=self._image)
 
     def _finish(self, state: SupervisorState, path_scores: np.ndarray,
                 confirmed: Optional[NodeId], reason: str) -> SupervisorDecision:

@@ -256,7 +256,8 @@ def _navigate_serial(args, config):
     budget = args.max_steps if args.max_steps is not None else step_budget(config.episode, nav,
                                                                           serial_config.control_period_s)
     with LimoSerialBase(serial_config) as base:
-        outcome = run_episode(base, loaded.topomap, descriptor, goal.node, nav, budget)
+        outcome = run_episode(base, loaded.topomap, descriptor, goal.node, nav, budget,
+                              goal_descriptor=goal.descriptor)
     metrics = compute_metrics(outcome)
     if args.result is not None:
         write_json(args.result, {**metrics.to_dict(), "setup": {"map": str(args.map), "goal": goal.source,

@@ -8,7 +8,7 @@ from core.hal import HalError, Pose2D
 from core.hal_check import check_base
 from maps.graph import TopoMap
 from robot.episode.loop import EpisodeEnd, run_episode
-from tests.memory_base import ChainDescriptor, MemoryBase
+from tests.memory_base import ChainDescriptor, MemoryBase, encode_position
 
 N_NODES = 6
 CONFIG = NavigationConfig(thresholds=Thresholds(t_milestone=0.9, t_change_node=0.8, t_limited_control=0.6,
@@ -104,3 +104,35 @@ def test_bad_step_budgets_are_refused_before_the_base_moves(chain):
         with pytest.raises(ValueError, match="max_steps"):
             _run(base, chain, max_steps=bad)
         assert not any(not c.is_zero for c in base.applied)
+
+
+def test_an_image_goal_stops_where_the_view_matches_the_goal_image(chain):
+    """The goal picture was taken 0.4 m before the goal node's: the final approach stops at the
+    picture's place, where the goal node's score alone carries the robot to the node and past."""
+    topomap, descriptor = chain
+    goal_x = N_NODES - 1.4
+    goal = descriptor.describe([encode_position(goal_x)])[0]
+    ends = {}
+    for name, goal_descriptor in (("node", None), ("image", goal)):
+        base = MemoryBase()
+        base.connect()
+        scores = []
+        try:
+            outcome = run_episode(base, topomap, descriptor, N_NODES - 1, CONFIG, 400, thirds_contrast=False,
+                                  goal_descriptor=goal_descriptor,
+                                  observer=lambda r: scores.append(r.goal_score) and None)
+        finally:
+            base.close()
+        assert outcome.end is EpisodeEnd.ARRIVED, outcome.reason
+        ends[name] = base.pose.x_m
+        assert (name == "image") == all(s is not None for s in scores)
+    assert abs(ends["image"] - goal_x) < 0.35 < abs(ends["node"] - goal_x)
+
+
+def test_a_goal_descriptor_of_another_length_is_refused(chain):
+    topomap, descriptor = chain
+    base = MemoryBase()
+    base.connect()
+    with pytest.raises(ValueError, match="goal_descriptor must have the map's descriptor length"):
+        run_episode(base, topomap, descriptor, N_NODES - 1, CONFIG, 10, goal_descriptor=[1.0, 0.0])
+    base.close()

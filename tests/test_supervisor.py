@@ -1,6 +1,7 @@
 """Node switching with scripted and synthetic similarity sequences."""
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -260,3 +261,80 @@ def test_goal_is_declared_once_its_score_stops_improving_not_at_the_first_pass()
     feed(sup, [row(4, n0=0.85, n1=0.3)] * 3 + [row(4, n0=0.5, n1=0.5)] * 3 + rising)
     d = sup.tick(row(4, n0=0.4, n1=TH.t_milestone + 0.02))
     assert d.state is SupervisorState.GOAL_REACHED
+
+
+# -- the final approach to a goal image ---------------------------------------------------
+
+IMAGE = NavigationConfig(filter=PASS_THROUGH.filter,
+                         supervisor=SupervisorConfig(goal_settle_ticks=5, confirm_best_of_map=False))
+
+
+def _at_the_node_before_the_goal(config=IMAGE):
+    """A supervisor on the path 0 -> 1 -> 2 that has confirmed node 1 and left it: node 2 (the
+    goal node) is the target."""
+    sup = NodeSwitchSupervisor([0, 1, 2], range(5), config)
+    feed(sup, [row(5, n0=0.85, n1=0.3)] * 3 + [row(5, n0=0.5, n1=0.5)] * 2)
+    d = sup.tick(row(5, n0=0.4, n1=TH.t_milestone + 0.05))
+    assert d.confirmed_node == 1 and d.target_node == 2
+    d = feed(sup, [row(5, n1=TH.t_change_node - 0.05, n2=0.45)] * 2)[-1]
+    assert d.state is SupervisorState.APPROACHING and d.target_node == 2
+    return sup
+
+
+def test_a_goal_image_peak_before_the_goal_node_is_confirmed_does_not_arrive():
+    """Before the goal node is confirmed, a passing high of the goal image (a corridor a metre
+    short of the goal, identical doors) neither arrives nor counts as the peak afterwards."""
+    sup = _at_the_node_before_the_goal()
+    node_two = TH.t_lost + 0.05                       # the view resembles the goal node, not enough to confirm it
+    early = [sup.tick(row(5, n1=0.4, n2=node_two), goal_score=s) for s in (0.6, 0.75, 0.9, 0.75, 0.6, 0.5, 0.5)]
+    assert all(d.state is not SupervisorState.GOAL_REACHED for d in early)
+    d = sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=0.6)    # the goal node confirmed
+    assert d.state is not SupervisorState.GOAL_REACHED and "goal in sight" in d.reason
+    rising = [sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=0.6 + 0.05 * k) for k in range(1, 4)]
+    assert all(d.state is not SupervisorState.GOAL_REACHED for d in rising)
+    falling = [sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=0.4) for _ in range(4)]
+    arrived = next(d for d in falling if d.state is SupervisorState.GOAL_REACHED)
+    assert "the goal image" in arrived.reason
+    peak = float(arrived.reason.split("peak ")[1].split(" ")[0])
+    assert peak == pytest.approx(0.75), "the peak counts from the confirmation on, not the early 0.9"
+
+
+def test_past_the_goal_nodes_picture_the_robot_drives_on_while_the_goal_image_improves():
+    """The goal node is confirmed and its score stops improving, but the goal image still
+    scores higher each tick: the goal lies ahead of the node's picture."""
+    sup = _at_the_node_before_the_goal()
+    d = sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=TH.t_milestone + 0.02)
+    assert d.state is not SupervisorState.GOAL_REACHED and "goal in sight" in d.reason
+    flat_node = [sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=TH.t_milestone + 0.02 + 0.02 * k)
+                 for k in range(1, 10)]
+    assert all(d.state is not SupervisorState.GOAL_REACHED for d in flat_node)   # the node rule alone: 5 ticks
+    d = sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=TH.t_milestone + 0.16)
+    assert d.state is SupervisorState.GOAL_REACHED and "the goal image" in d.reason
+
+
+def test_a_goal_image_that_never_matches_well_leaves_arrival_to_the_goal_node():
+    """Under other light than the goal picture's, its score may never pass t_milestone: the goal
+    node's own score settles arrival as without a goal image."""
+    sup = _at_the_node_before_the_goal()
+    low = TH.t_milestone - 0.1
+    ds = [sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=low) for _ in range(8)]
+    states = [d.state for d in ds]
+    assert SupervisorState.GOAL_REACHED in states
+    assert "settled" in ds[states.index(SupervisorState.GOAL_REACHED)].reason
+
+
+def test_goal_image_arrival_off_ignores_the_goal_image():
+    config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, goal_image_arrival=False))
+    with_image, without = _at_the_node_before_the_goal(config), _at_the_node_before_the_goal(config)
+    scores = [0.6, 0.7, 0.8, 0.7, 0.6] + [0.5] * 6
+    rows = [row(5, n1=0.4, n2=TH.t_milestone + 0.01 * k) for k in range(len(scores))]
+    a = [with_image.tick(r, goal_score=s) for r, s in zip(rows, scores)]
+    b = [without.tick(r) for r in rows]
+    assert [(d.state, d.reason) for d in a] == [(d.state, d.reason) for d in b]
+    assert all(d.goal_image_score is None for d in a)
+
+
+def test_a_goal_score_that_is_not_finite_is_refused():
+    sup = _at_the_node_before_the_goal()
+    with pytest.raises(ValueError, match="goal_score must be finite"):
+        sup.tick(row(5, n2=0.5), goal_score=float("nan"))

@@ -54,6 +54,9 @@ class ResolvedGoal:
     #: GOAL_RIVAL_HOPS arcs from the goal node scoring within GOAL_RIVAL_MARGIN of it): an
     #: ambiguous goal picture (a dead end, a blank wall); the robot may stop at the wrong one
     rivals: tuple[int, ...] = ()
+    #: the goal image's descriptor (D,), for the final approach that compares the view with the
+    #: goal image itself (None for a node-id goal)
+    descriptor: Optional[np.ndarray] = None
 
 
 GOAL_RIVAL_HOPS = 2
@@ -89,7 +92,8 @@ def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
     except GoalNotLocalisedError as exc:
         raise GoalNotLocalisedError(f"goal {source}: {exc}") from None
     return ResolvedGoal(node=int(found.node), source=source, localisation=found, image=image,
-                        rivals=_goal_rivals(topomap, int(found.node), topomap.similarities(view)))
+                        rivals=_goal_rivals(topomap, int(found.node), topomap.similarities(view)),
+                        descriptor=view)
 
 
 def _goal_rivals(topomap: TopoMap, node: int, row: np.ndarray) -> tuple[int, ...]:

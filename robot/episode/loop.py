@@ -8,7 +8,8 @@ HAL-agnostic: the same loop runs the simulated Limo and the serial Limo. Every c
     thirds = node_descriptors @ x[1:].T                   # (N, 3): every third against every node
     belief.move(odometry motion); belief.observe(row)    # the belief over the map
     step = navigator.tick(row, thirds=thirds, thirds_contrast=contrast_thirds(thirds), heading_rad=yaw,
-                          belief=belief.snapshot())       # it places the robot with localiser.from_belief
+                          belief=belief.snapshot(),       # it places the robot with localiser.from_belief
+                          goal_score=goal_descriptor @ x[0])   # image goals: the final approach
     base.apply(step.velocity); base.tick()
 
 and it stops when the navigator declares arrival or failure, the step budget runs out, the base
@@ -69,6 +70,7 @@ class StepRecord:
     similarities: np.ndarray      # raw similarity of the view to every node (row order node_ids)
     timing: StepTiming
     belief: Optional[BeliefSnapshot] = None   # the belief over the map after this view (None: no belief)
+    goal_score: Optional[float] = None        # the view's similarity to the goal image (None: a node-id goal)
 
 
 class EpisodeEnd(enum.Enum):
@@ -165,7 +167,8 @@ def _plain(nodes: Sequence) -> tuple[int, ...]:
 def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_node: int,
                 config: NavigationConfig, max_steps: int,
                 observer: Optional[Observer] = None, *, thirds_contrast: bool = True,
-                action_policy: Optional[ActionPolicy] = None) -> EpisodeOutcome:
+                action_policy: Optional[ActionPolicy] = None,
+                goal_descriptor: Optional[np.ndarray] = None) -> EpisodeOutcome:
     """Drive the connected ``base`` to ``goal_node`` of ``topomap``; see the module docstring.
 
     ``descriptor`` must be the map's (see :func:`attach_descriptor`); ``config.thresholds`` are
@@ -174,7 +177,9 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     ends the episode as ABORTED with that reason. ``thirds_contrast``: the voter gets the thirds'
     contrast against all nodes (:func:`controllers.voter.contrast_thirds`) instead of raw cosines.
     ``action_policy``: a learned policy that picks the actions instead of the voter (its time
-    counts as ``describe_ms``).
+    counts as ``describe_ms``). ``goal_descriptor``: the goal image's descriptor (D,), when the
+    goal is an image: every view is also compared with it, for the final approach
+    (``supervisor.goal_image_arrival``).
 
     Raises :class:`UnreachableGoalError` when the robot localised at a node from which no arc
     chain leads to the goal, :class:`HalError` when the base gives no camera image; the base is
@@ -184,6 +189,12 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         raise ValueError(f"max_steps must be an integer >= 1, got {max_steps!r}")
     node_ids = topomap.node_ids
     nodes = np.ascontiguousarray(topomap.descriptors, dtype=np.float32)
+    goal_view = None
+    if goal_descriptor is not None:
+        goal_view = np.asarray(goal_descriptor, dtype=np.float32).reshape(-1)
+        if goal_view.shape != (nodes.shape[1],):
+            raise ValueError(f"goal_descriptor must have the map's descriptor length {nodes.shape[1]}, "
+                             f"got shape {np.shape(goal_descriptor)}")
     belief, belief_setup = map_belief(topomap, config.belief)
     if belief is None and config.localiser.from_belief != "off":
         config = replace(config, localiser=replace(config.localiser, from_belief="off"))
@@ -215,6 +226,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             t0 = time.perf_counter()
             views = np.asarray(descriptor.describe_thirds([frame.rgb]), dtype=np.float32)[0]
             similarities = nodes @ views[0]
+            goal_score = None if goal_view is None else float(goal_view @ views[0])
             policy = action_policy.for_frame(frame.rgb) if action_policy is not None else None
             describe_ms = _ms(t0)
 
@@ -225,7 +237,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             thirds = nodes @ views[1:].T
             step = navigator.tick(similarities, thirds=thirds,
                                   thirds_contrast=contrast_thirds(thirds) if thirds_contrast else None,
-                                  heading_rad=heading.update(frame), policy=policy, belief=snapshot)
+                                  heading_rad=heading.update(frame), policy=policy, belief=snapshot,
+                                  goal_score=goal_score)
             applied = base.apply(step.velocity)
             decide_ms = _ms(t0)
             if step.planned_path and (not plans or plans[-1] != _plain(step.planned_path)):
@@ -233,7 +246,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
 
             if step.finished:
                 timings.append(StepTiming(read_ms, describe_ms, decide_ms, 0.0))
-                _notify(observer, StepRecord(index, frame, step, applied, similarities, timings[-1], snapshot))
+                _notify(observer, StepRecord(index, frame, step, applied, similarities, timings[-1],
+                                             snapshot, goal_score))
                 if navigator.planning_error is not None:
                     raise navigator.planning_error
                 end = EpisodeEnd.ARRIVED if step.state is NavState.ARRIVED else EpisodeEnd.FAILED
@@ -242,7 +256,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             t0 = time.perf_counter()
             base.tick()
             timings.append(StepTiming(read_ms, describe_ms, decide_ms, _ms(t0)))
-            abort = _notify(observer, StepRecord(index, frame, step, applied, similarities, timings[-1], snapshot))
+            abort = _notify(observer, StepRecord(index, frame, step, applied, similarities, timings[-1],
+                                                 snapshot, goal_score))
             if abort:
                 end, reason = EpisodeEnd.ABORTED, abort
                 break

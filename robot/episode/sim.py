@@ -233,7 +233,7 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
             recorder = _TruthRecorder(base, video, bar, log)
             outcome = run_episode(base, loaded.topomap, descriptor, resolved.node, nav_config, budget,
                                   observer=recorder, thirds_contrast=config.episode.thirds_contrast,
-                                  action_policy=action_policy)
+                                  action_policy=action_policy, goal_descriptor=resolved.descriptor)
             collisions = truth.collision_count() - collisions_before
             toppled = truth.toppled()
     finally:

@@ -42,6 +42,8 @@ def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray) -> di
             [r3(s.vote.scores.left), r3(s.vote.scores.middle), r3(s.vote.scores.right)],
             "best_raw_node": int(node_ids[best]), "best_raw_score": r3(sims[best]),
             "relocalisations": s.relocalisations, "reason": s.reason,
+            "goal_image_score": r3(record.goal_score),
+            "goal_image_filtered": None if s.supervisor is None else r3(s.supervisor.goal_image_score),
             "belief_top": None if record.belief is None else [[int(n), round(m, 3)] for n, m in record.belief.top],
             "belief_confidence": None if record.belief is None else round(record.belief.confidence, 3),
             "belief_entropy_bits": None if record.belief is None else round(record.belief.entropy_bits, 2),
