@@ -17,6 +17,7 @@ every way out: Ctrl-C (130), SIGTERM (143), SIGHUP (129) and errors.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -34,6 +35,7 @@ from core.cli import (
     positive_float,
     positive_int,
 )
+from robot.viewer.stream import add_viewer_arguments
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -98,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="--hal serial: baud rate (default: the config's serial.baud, 460800)")
     hal.add_argument("--camera", default=None,
                      help="--hal serial: camera device index, stream URL or video file (default: serial.camera)")
+    add_viewer_arguments(parser)
     return parser
 
 
@@ -157,7 +160,7 @@ def _mode_map(args, config) -> int:
     map_dir = args.map if args.map is not None else out / "map"
     built = build_map_from_frames(source, _make_descriptor(config), config.mapping, map_dir, total=len(source),
                                   world_picture=world_picture, fit_max_frames=config.descriptor.fit_max_frames,
-                                  source=source.description, progress=not args.quiet,
+                                  source=source.description, progress=not args.quiet, viewer=args.viewer,
                                   extra={k: summary[k] for k in ("world", "appearance_seed") if k in summary})
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "summary.json", {**summary, "map": str(map_dir), **built.summary})
@@ -222,7 +225,7 @@ def _navigate_sim(args, config):
                          appearance_seed=args.appearance_seed, max_steps=args.max_steps)
     outputs = EpisodeOutputs(result_path=args.result,
                              trace_png=args.trace if args.trace is not None else out / "navigation.png",
-                             video_path=args.record_video, progress=not args.quiet)
+                             video_path=args.record_video, viewer=args.viewer, progress=not args.quiet)
     result = run_sim_navigation(episode, _make_descriptor(config), config, outputs, make_base=make_base)
     if result.goal.rivals:
         print(f"warning: the goal image also resembles node(s) {', '.join(map(str, result.goal.rivals))} almost as "
@@ -255,8 +258,12 @@ def _navigate_serial(args, config):
     serial_config = replace(config.serial, **overrides)
     budget = args.max_steps if args.max_steps is not None else step_budget(config.episode, nav,
                                                                           serial_config.control_period_s)
-    with LimoSerialBase(serial_config) as base:
+    with _navigation_viewer(args.viewer, f"navigate {serial_config.port}", loaded.topomap) as viewer, \
+            LimoSerialBase(serial_config) as base:
+        if viewer is not None:
+            viewer.setup(goal.node, goal.image, goal.source)
         outcome = run_episode(base, loaded.topomap, descriptor, goal.node, nav, budget,
+                              observer=None if viewer is None else viewer.observer,
                               goal_descriptor=goal.descriptor)
     metrics = compute_metrics(outcome)
     if args.result is not None:
@@ -264,6 +271,20 @@ def _navigate_serial(args, config):
                                                                         "goal_node": goal.node,
                                                                         "port": serial_config.port}})
     return metrics
+
+
+@contextlib.contextmanager
+def _navigation_viewer(target, name: str, topomap):
+    """A :class:`robot.viewer.navigation.NavigationLogger` on a recording for ``target``, or None."""
+    if target is None:
+        yield None
+        return
+    from robot.viewer.navigation import NavigationLogger
+    from robot.viewer.scene import navigation_blueprint
+    from robot.viewer.stream import Recording, rerun_sdk
+
+    with Recording(target, name, blueprint=navigation_blueprint(rerun_sdk())) as recording:
+        yield NavigationLogger(recording.rr, recording.stream, topomap)
 
 
 def _navigation_input_errors() -> tuple[type[BaseException], ...]:
@@ -324,6 +345,7 @@ def main(argv: list[str] | None = None) -> int:
     from robot.mapping.recording import RecordingError
     from robot.mapping.sources import FrameSourceError
     from robot.settings import load_stack_config
+    from robot.viewer.stream import viewer_target
 
     # the drive's error type comes with the simulator: only the mapping run needs it (the real
     # base's navigation never loads pybullet)
@@ -331,6 +353,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         check_paths(args)
+        args.viewer = viewer_target(args)
         config = load_stack_config(args.config)
         if args.seed is not None or args.gui:
             sim = replace(config.sim, seed=config.sim.seed if args.seed is None else args.seed,
@@ -345,7 +368,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return EXIT_USAGE if _is_port_error(exc) else EXIT_FAILED
     except KeyboardInterrupt as exc:
-        print(f"{interrupted_by(exc)}: the robot was stopped; nothing was written", file=sys.stderr)
+        saved = getattr(args, "viewer", None) and args.viewer.save_path
+        kept = f"only the recording of the steps made, {saved}, was written" if saved else "nothing was written"
+        print(f"{interrupted_by(exc)}: the robot was stopped; {kept}", file=sys.stderr)
         return exit_status(exc)
 
 

@@ -133,3 +133,38 @@ def test_serial_navigation_never_loads_the_simulator(serial_setup):
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.stdout.split() == ["exit", "2", "False"], (proc.stdout, proc.stderr)
     assert "/dev/ttyNOPE" in proc.stderr
+
+
+def test_a_serial_run_recorded_for_the_viewer_keeps_its_recording_after_ctrl_c(serial_setup, tmp_path):
+    """--rerun-save on the real-base path: Ctrl-C stops the base as without it, and the recording
+    of the steps made is at its name (moved into place on the way out), readable by Rerun."""
+    rerun_chunk = pytest.importorskip("rerun.chunk")
+    root = serial_setup
+    rrd = tmp_path / "serial.rrd"
+    emu, port, lines = _start_emulator()
+    try:
+        nav = subprocess.Popen([sys.executable, "-m", "robot.run", "--mode", "navigate", "--hal", "serial",
+                                "--port", port, "--camera", str(root / "camera.mp4"), "--map",
+                                str(root / "run" / "map"), "--goal", "15", "--config", str(root / "tiny.yaml"),
+                                "--quiet", "--rerun-save", str(rrd)], stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE, text=True)
+        moving = False
+        deadline = time.monotonic() + 90
+        while time.monotonic() < deadline and not moving:
+            moving = any(abs(v) > 0.01 or abs(w) > 0.01 for v, w in _commands(lines, 0.5))
+            assert nav.poll() is None, nav.communicate()[1]
+        assert moving, "the navigation never commanded motion over the serial link"
+        nav.send_signal(signal.SIGINT)
+        _, err = nav.communicate(timeout=30)
+        assert nav.returncode == 130, err
+        while not lines.empty():
+            lines.get_nowait()
+        after = _commands(lines, 0.4)
+        assert after and all(v == 0.0 and w == 0.0 for v, w in after), after
+    finally:
+        emu.send_signal(signal.SIGINT)
+        emu.communicate(timeout=10)
+    store = rerun_chunk.RrdReader(rrd).store()
+    ticks = sum(c.num_rows for c in store.stream().filter(content="/camera/image").to_chunks())
+    assert ticks > 0 and "/map/true_pose" not in store.schema().entity_paths()   # a real base has no truth
+    assert not list(tmp_path.glob(".*tmp*"))

@@ -12,7 +12,9 @@ Five numbers a Limo owner needs before trusting the 10 Hz control loop to a smal
    ``robot.run --mode navigate``; the goal is the image at the route's goal on a ``--map``, the
    last node on the map built here from the drive, which ends at the route's goal): render (``read``) / describe / decide / physics (``tick``)
    per step, median, mean and p90, and the episode's wall time per step, which the stages
-   should add up to;
+   should add up to; with ``--rerun`` the same episode runs once more, recorded for the Rerun
+   viewer to an ``.rrd`` file: what logging one step costs (median, p90) and the file's size
+   per step;
 3. **mapping throughput from a video**: the route is driven with the scripted teleoperator and
    its camera frames written as an MP4 at the recording rate (or ``--video`` is used), then
    mapped ``--map-repeats`` times with the pipeline of ``robot.run --mode map --video`` (fresh
@@ -111,6 +113,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=f"keep the drive video ({VIDEO_NAME}) and the built map ({MAP_NAME}/) here "
                              "(default: a temporary folder, removed afterwards)")
     parser.add_argument("--json", type=Path, default=None, metavar="PATH", help="also write the numbers as JSON here")
+    parser.add_argument("--rerun", action="store_true",
+                        help="also run the episode (first engine) while recording it for the Rerun viewer to an "
+                             ".rrd file, and report what logging costs per step (needs pip install -e '.[viz]')")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -143,6 +148,13 @@ def settings_from(args: argparse.Namespace) -> PerfSettings:
         raise PerfInputError(f"--video {args.video}: no such file")
     if args.map is not None and not args.map.is_dir():
         raise PerfInputError(f"--map {args.map}: no such map folder")
+    if getattr(args, "rerun", False):
+        from robot.viewer.stream import ViewerUnavailableError, rerun_sdk
+
+        try:
+            rerun_sdk()
+        except ViewerUnavailableError as exc:
+            raise PerfInputError(f"--rerun: {exc}") from None
     engines: tuple[Optional[str], ...] = (None,)
     if args.engines is not None:
         from descriptors.inference import ENGINES
@@ -386,27 +398,37 @@ def last_node(map_dir: Path) -> int:
 
 
 def time_control_steps(world, map_dir: Path, config, route_name: str, steps: int, appearance_seed: int,
-                       progress: bool, goal_node: Optional[int] = None) -> dict:
+                       progress: bool, goal_node: Optional[int] = None, rrd: Optional[Path] = None) -> dict:
     """``steps`` steps of a navigation episode on ``map_dir`` from the route's start toward
     ``goal_node`` (None: the image the camera sees at the route's goal, as ``robot.run --mode
-    navigate --route`` does); per-stage ms from ``EpisodeOutcome.timings``."""
+    navigate --route`` does); per-stage ms from ``EpisodeOutcome.timings``. With ``rrd`` the
+    episode is also recorded for the viewer there, and what that costs per step is added."""
     from descriptors.factory import make_descriptor
     from robot.episode.sim import EpisodeOutputs, SimEpisode, run_sim_navigation
 
     descriptor = make_descriptor(config.descriptor.backend, **config.descriptor.settings)
     episode = SimEpisode(world, map_dir, goal=goal_node, route=route_name, appearance_seed=appearance_seed,
                          max_steps=steps)
-    result = run_sim_navigation(episode, descriptor, config, EpisodeOutputs(progress=progress))
+    viewer = None
+    if rrd is not None:
+        from robot.viewer.stream import ViewerTarget
+
+        viewer = ViewerTarget(save_path=rrd)
+    result = run_sim_navigation(episode, descriptor, config, EpisodeOutputs(progress=progress, viewer=viewer))
     outcome = result.outcome
     timings = outcome.timings
     if not timings:
         raise PerfInputError(f"the episode on {map_dir} ran no control step ({outcome.reason})")
     stages = {key: summary_ms([getattr(t, key) for t in timings]) for key, _ in STAGES}
     goal = f"image at the goal of route {route_name}" if goal_node is None else f"node {goal_node}"
-    return {"map": str(map_dir), "route": route_name, "goal": goal, "steps": len(timings), "end": outcome.end.value,
-            "reason": outcome.reason, "stages": stages, "total_ms": summary_ms([t.total_ms for t in timings]),
-            "wall_ms_per_step": outcome.wall_time_s * 1000.0 / len(timings),
-            "control_period_ms": config.sim.control_period_s * 1000.0}
+    out = {"map": str(map_dir), "route": route_name, "goal": goal, "steps": len(timings), "end": outcome.end.value,
+           "reason": outcome.reason, "stages": stages, "total_ms": summary_ms([t.total_ms for t in timings]),
+           "wall_ms_per_step": outcome.wall_time_s * 1000.0 / len(timings),
+           "control_period_ms": config.sim.control_period_s * 1000.0}
+    if rrd is not None:
+        out["viewer"] = {"log_ms": summary_ms(result.viewer_step_ms), "rrd_bytes": rrd.stat().st_size,
+                         "rrd_bytes_per_step": rrd.stat().st_size / len(timings)}
+    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -437,6 +459,12 @@ def format_report(report: dict) -> str:
                                                    f"(period {e['control_step']['control_period_ms']:.0f})")
     row("control step", "episode wall / step", lambda e: f"{e['control_step']['wall_ms_per_step']:.1f} ms "
                                                          f"({e['control_step']['steps']} steps)")
+    if "control_step_rerun" in first:
+        row("viewer", "log one step (--rerun)", lambda e: _ms(e["control_step_rerun"]["viewer"]["log_ms"])
+            if "control_step_rerun" in e else "")
+        row("viewer", "episode wall / step, recording", lambda e: f"{e['control_step_rerun']['wall_ms_per_step']:.1f} ms "
+            f"({e['control_step_rerun']['viewer']['rrd_bytes_per_step'] / 1024:.0f} KiB .rrd per step)"
+            if "control_step_rerun" in e else "")
     row("mapping", "video -> map", lambda e: f"{e['mapping']['fps_median']:.1f} frames/s "
                                              f"({e['mapping']['frames']} frames)")
     row("mapping", "nodes of the video's map", lambda e: f"{e['mapping']['nodes']}")
@@ -524,6 +552,11 @@ def run(args: argparse.Namespace, settings: PerfSettings, work: Path) -> dict:
         section["control_step"] = time_control_steps(world, map_dir, engine_config, route, settings.steps,
                                                      args.appearance_seed, progress, goal_node)
         memory[f"control steps ({label})"] = peak_rss_mb()
+        if args.rerun and not engines:      # the same episode again, recorded for the viewer
+            section["control_step_rerun"] = time_control_steps(world, map_dir, engine_config, route, settings.steps,
+                                                               args.appearance_seed, progress, goal_node,
+                                                               rrd=work / "perf.rrd")
+            memory[f"control steps with the viewer ({label})"] = peak_rss_mb()
         engines[label] = section
     del frames
 

@@ -8,7 +8,8 @@ target node with their filtered scores, the thirds' scores, the node the raw vie
 the navigator's reason and the belief over the map (top nodes with their mass, confidence, entropy,
 direction) (JSON lines, ``RUN/replays/<episode>.steps.jsonl`` by default), and beside it what the
 robot saw (``<episode>.views.npz``: the view's similarity to every node and the odometry, for
-``python -m robot.bench belief``); ``--video`` adds the MP4 with overlays. It prints the episode's events (localised, node
+``python -m robot.bench belief``); ``--video`` adds the MP4 with overlays, ``--rerun`` /
+``--rerun-save FILE.rrd`` the Rerun viewer's timeline (:mod:`robot.viewer`). It prints the episode's events (localised, node
 reached, lost, searching, ...) and whether the replay reproduced the recorded episode (same
 steps, end, success, final distance, re-localisations): the runs are deterministic, so a
 difference means the code or the configuration changed since.
@@ -32,6 +33,7 @@ from pathlib import Path
 from typing import Optional
 
 from core.shutdown import exit_status, interrupted_by
+from robot.viewer.stream import add_viewer_arguments
 
 #: What must match for an episode to count as reproduced.
 COMPARED = ("steps", "end", "success", "final_distance_m", "relocalisations")
@@ -51,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="stack config YAML (default configs/default.yaml; the paper run's --config if it had one)")
     parser.add_argument("--events", type=int, default=40, help="print the last N events (default 40; 0: none)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_viewer_arguments(parser)
 
 
 def load_episode(path: Path):
@@ -173,13 +176,16 @@ def _diagnosis(log: Path, trial, goal_node) -> Optional[str]:
 
 
 def main(args: argparse.Namespace) -> int:
+    from core.cli import UsageError
     from robot.bench.trials import run_trial, step_log_path, worker_init
+    from robot.viewer.stream import viewer_target
 
     try:
+        viewer = viewer_target(args)
         trial, recorded = load_episode(args.episode)
         if args.config is not None and not args.config.is_file():
             raise ReplayError(f"--config {args.config}: no such file")
-    except ReplayError as exc:
+    except (ReplayError, UsageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     from core.configfile import ConfigError
@@ -206,7 +212,8 @@ def main(args: argparse.Namespace) -> int:
     worker_init()          # as the harness ran it: one torch / BLAS / OpenCV thread
     try:
         result = run_trial(trial, None if args.config is None else str(args.config), step_log=str(log),
-                           video_path=None if args.video is None else str(args.video), progress=not args.quiet)
+                           video_path=None if args.video is None else str(args.video), viewer=viewer,
+                           progress=not args.quiet)
     except KeyboardInterrupt as exc:
         print(f"{interrupted_by(exc)}: the steps made are in {log}", file=sys.stderr)
         return exit_status(exc)
@@ -225,7 +232,7 @@ def main(args: argparse.Namespace) -> int:
     from robot.episode.step_log import views_path
 
     written = [str(p) for p in (log, views_path(log)) if p.is_file()]
-    written += [str(p) for p in (args.video, args.trace) if p is not None]
+    written += [str(p) for p in (args.video, args.trace, args.rerun_save) if p is not None]
     if written:
         print(f"wrote {', '.join(written)}")
     diff = differences(recorded, m)

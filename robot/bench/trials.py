@@ -175,10 +175,11 @@ def worker_init() -> None:
 
 
 def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Optional[str] = None,
-              video_path: Optional[str] = None, progress: bool = False) -> dict:
+              video_path: Optional[str] = None, viewer=None, progress: bool = False) -> dict:
     """Run one trial; returns ``{"trial": ..., "metrics": ..., "trajectory": ..., "timing": ...}``
-    (``timing`` is the only wall-clock part). ``step_log`` / ``video_path``: a per-step JSON-lines
-    log and an MP4 with overlays (``python -m robot.bench replay``); neither changes the run."""
+    (``timing`` is the only wall-clock part). ``step_log`` / ``video_path`` / ``viewer``: a per-step
+    JSON-lines log, an MP4 with overlays and a :class:`robot.viewer.stream.ViewerTarget` (``python
+    -m robot.bench replay``); none changes the run."""
     from controllers.localisation import GoalNotLocalisedError
     from controllers.planner import PlanningError
     from core.hal import Pose2D
@@ -212,7 +213,7 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
         episode = SimEpisode(spec, trial.map_dir, route=trial.route, start=start,
                              appearance_seed=trial.appearance_seed, shortest_length_m=trial.shortest_length_m)
         outputs = EpisodeOutputs(trace_png=trial.trace_png, video_path=video_path, step_log=step_log,
-                                 progress=progress)
+                                 viewer=viewer, progress=progress)
         result = run_sim_navigation(episode, descriptor, replace(config, navigation=navigation), outputs,
                                     loaded_map=loaded, action_policy=policy)
     except (GoalNotLocalisedError, PlanningError) as exc:

@@ -13,7 +13,7 @@
    under the episode's appearance seed, as a user would photograph the place that day);
 4. run :func:`robot.episode.loop.run_episode` with an observer that records the true poses (for
    metrics and the trace only; the controller never sees them), aborts when the robot topples,
-   and feeds the optional video;
+   and feeds the optional video and viewer (:mod:`robot.viewer`);
 5. compute :class:`robot.episode.metrics.EpisodeMetrics`, write the ``--result`` JSON, the trace
    picture, the video and the step log (:class:`EpisodeOutputs`).
 
@@ -44,6 +44,9 @@ from robot.episode.setup import attach_descriptor, configure_thresholds
 from robot.episode.start import StartError, StartSpec, resolve_start, route_of, route_pose
 from robot.episode.step_log import StepLog
 from robot.settings import StackConfig
+from robot.viewer.navigation import NavigationLogger
+from robot.viewer.scene import navigation_blueprint
+from robot.viewer.stream import Recording, ViewerTarget, rerun_sdk
 from sim.hal import SimLimo
 from sim.topdown import render_topdown
 from sim.world_spec import WorldSpec
@@ -80,12 +83,14 @@ class SimEpisode:
 class EpisodeOutputs:
     """What to write: ``result_path`` (JSON with the metrics and the setup), ``trace_png`` (the
     top-down trace), ``video_path`` (MP4 with overlays), ``step_log`` (JSON lines, one per step:
-    :mod:`robot.episode.step_log`); ``progress``: a progress bar on the terminal."""
+    :mod:`robot.episode.step_log`); ``viewer``: the Rerun viewer or ``.rrd`` file the episode
+    streams to (:mod:`robot.viewer`); ``progress``: a progress bar on the terminal."""
 
     result_path: Optional[Union[str, Path]] = None
     trace_png: Optional[Union[str, Path]] = None
     video_path: Optional[Union[str, Path]] = None
     step_log: Optional[Union[str, Path]] = None
+    viewer: Optional[ViewerTarget] = None
     progress: bool = True
 
 
@@ -101,6 +106,7 @@ class SimNavigationResult:
     setup: dict
     summary: str                      # the human summary (format_summary)
     true_poses: tuple[Pose2D, ...] = ()  # the true pose at every step, start and end included
+    viewer_step_ms: tuple[float, ...] = ()  # what logging each step to the viewer took (ms), if any
 
 
 @dataclass(frozen=True)
@@ -117,16 +123,17 @@ class _GoalPlan:
 
 
 class _TruthRecorder:
-    """The observer: records true poses, aborts on toppling, feeds the video, the step log and
-    the progress bar."""
+    """The observer: records true poses, aborts on toppling, feeds the video, the step log, the
+    viewer and the progress bar."""
 
     def __init__(self, base: SimLimo, video: Optional[NavigationVideo], bar: Optional[tqdm],
-                 log: Optional[StepLog] = None):
+                 log: Optional[StepLog] = None, viewer: Optional[NavigationLogger] = None):
         self.truth = base.ground_truth
         self.poses: list[Pose2D] = [self.truth.true_pose()]
         self.video = video
         self.bar = bar
         self.log = log
+        self.viewer = viewer
 
     def __call__(self, record: StepRecord) -> Optional[str]:
         pose = self.truth.true_pose()
@@ -135,6 +142,8 @@ class _TruthRecorder:
             self.log.write(record, pose)
         if self.video is not None:
             self.video.add(record.frame.rgb, record.step, record.frame.stamp_s)
+        if self.viewer is not None:
+            self.viewer.step(record, pose)
         if self.bar is not None:
             s = record.step
             self.bar.update(1)
@@ -210,6 +219,9 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
         if outputs.video_path is not None else None
     bar = tqdm(total=budget, unit="step", desc="navigating", disable=not outputs.progress, leave=False)
     log = StepLog(outputs.step_log, loaded.topomap.node_ids) if outputs.step_log is not None else None
+    recording = Recording(outputs.viewer, f"navigate {spec.name} {episode.route or ''}".strip(),
+                          blueprint=navigation_blueprint(rerun_sdk())) if outputs.viewer is not None else None
+    viewer = NavigationLogger(recording.rr, recording.stream, loaded.topomap) if recording is not None else None
     try:
         with base:
             truth = base.ground_truth
@@ -230,7 +242,9 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
                 "method": "voter" if action_policy is None else action_policy.name,
             }
             collisions_before = truth.collision_count()
-            recorder = _TruthRecorder(base, video, bar, log)
+            if viewer is not None:
+                viewer.setup(resolved.node, goal_image, plan.source, start_pose, goal_pose)
+            recorder = _TruthRecorder(base, video, bar, log, viewer)
             outcome = run_episode(base, loaded.topomap, descriptor, resolved.node, nav_config, budget,
                                   observer=recorder, thirds_contrast=config.episode.thirds_contrast,
                                   action_policy=action_policy, goal_descriptor=resolved.descriptor)
@@ -242,6 +256,8 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
             video.close()
         if log is not None:
             log.close()
+        if recording is not None:
+            recording.close()
 
     metrics = compute_metrics(outcome, recorder.poses, goal_pose, shortest, collisions, toppled)
     if outputs.result_path is not None:
@@ -251,7 +267,8 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
                     resolved.node, metrics)
     return SimNavigationResult(metrics=metrics, outcome=outcome, start_pose=start_pose, goal_pose=goal_pose,
                                goal=resolved, setup=setup, summary=format_summary(metrics),
-                               true_poses=tuple(recorder.poses))
+                               true_poses=tuple(recorder.poses),
+                               viewer_step_ms=tuple(viewer.step_ms) if viewer is not None else ())
 
 
 def _draw_trace(path, spec: WorldSpec, episode: SimEpisode, loaded: LoadedMap, poses, outcome: EpisodeOutcome,

@@ -22,6 +22,9 @@ from maps.pictures import draw_map_picture, draw_similarity_picture
 from maps.pipeline import build_map
 from maps.store import map_size, save_map
 from robot.mapping.sources import FrameSourceError, MapFrame
+from robot.viewer.mapping import log_map_build
+from robot.viewer.scene import mapping_blueprint
+from robot.viewer.stream import Recording, ViewerTarget, rerun_sdk
 
 MAP_PICTURE = "map.png"
 SIMILARITY_PICTURE = "similarity.png"
@@ -141,12 +144,14 @@ def _draw_pictures(topomap, map_dir: Path, thumbnail, world_picture, sample, log
 def build_map_from_frames(frames: Iterable[MapFrame], descriptor: Descriptor, config: MappingConfig,
                           map_dir: str | Path, *, total: Optional[int] = None,
                           world_picture: Optional[WorldPicture] = None, fit_max_frames: int = 300,
-                          source: str = "", extra: Optional[dict] = None, progress: bool = True) -> MapBuildResult:
+                          source: str = "", extra: Optional[dict] = None, progress: bool = True,
+                          viewer: Optional[ViewerTarget] = None) -> MapBuildResult:
     """Read ``frames``, build the map and save it to ``map_dir`` with ``map.png`` and ``similarity.png``.
 
     ``descriptor`` is fitted here when it needs a vocabulary. Returns the summary (also stored in
     the map's manifest with ``extra``, e.g. the world's name): frames read, nodes, loop closures,
-    merges, metres when poses are known.
+    merges, metres when poses are known. ``viewer``: the build is also logged for the Rerun
+    viewer there (:mod:`robot.viewer.mapping`).
     """
     map_dir = Path(map_dir)
     with tqdm(total=total or None, unit="frame", desc="reading", disable=not progress) as bar:
@@ -175,4 +180,7 @@ def build_map_from_frames(frames: Iterable[MapFrame], descriptor: Descriptor, co
              log=made.log, similarity=sample, merged=merged, extra=summary)
     summary["map_bytes_per_node"] = int(map_size(map_dir).per_node_bytes)
     _draw_pictures(made.topomap, map_dir, thumbnails.get, world_picture, sample, made.log, merged)
+    if viewer is not None:
+        with Recording(viewer, f"map {source or map_dir.name}", blueprint=mapping_blueprint(rerun_sdk())) as rec:
+            log_map_build(rec.rr, rec.stream, [f.stamp_s for f in kept], images, x, made, poses)
     return MapBuildResult(map_dir=map_dir, summary=summary)
