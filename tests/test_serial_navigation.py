@@ -74,6 +74,16 @@ def _commands(lines: "queue.Queue[str]", timeout_s: float) -> list[tuple[float, 
     return out
 
 
+def _wait_until_moving(nav: subprocess.Popen, lines: "queue.Queue[str]") -> None:
+    """Until the navigation commands motion over the link (90 s at most; it must not exit)."""
+    deadline = time.monotonic() + 90
+    while time.monotonic() < deadline:
+        if any(abs(v) > 0.01 or abs(w) > 0.01 for v, w in _commands(lines, 0.5)):
+            return
+        assert nav.poll() is None, nav.communicate()[1]
+    raise AssertionError("the navigation never commanded motion over the serial link")
+
+
 @pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)],
                          ids=["ctrl-c", "sigterm", "sighup"])
 def test_a_signal_during_serial_navigation_leaves_the_base_at_zero(serial_setup, signum, status):
@@ -86,12 +96,7 @@ def test_a_signal_during_serial_navigation_leaves_the_base_at_zero(serial_setup,
                                 "--port", port, "--camera", str(root / "camera.mp4"), "--map",
                                 str(root / "run" / "map"), "--goal", "15", "--config", str(root / "tiny.yaml"),
                                 "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        moving = False
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline and not moving:      # wait until the robot is driving
-            moving = any(abs(v) > 0.01 or abs(w) > 0.01 for v, w in _commands(lines, 0.5))
-            assert nav.poll() is None, nav.communicate()[1]
-        assert moving, "the navigation never commanded motion over the serial link"
+        _wait_until_moving(nav, lines)
         nav.send_signal(signum)
         _, err = nav.communicate(timeout=30)
         assert nav.returncode == status, err
@@ -148,12 +153,7 @@ def test_a_serial_run_recorded_for_the_viewer_keeps_its_recording_after_ctrl_c(s
                                 str(root / "run" / "map"), "--goal", "15", "--config", str(root / "tiny.yaml"),
                                 "--quiet", "--rerun-save", str(rrd)], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
-        moving = False
-        deadline = time.monotonic() + 90
-        while time.monotonic() < deadline and not moving:
-            moving = any(abs(v) > 0.01 or abs(w) > 0.01 for v, w in _commands(lines, 0.5))
-            assert nav.poll() is None, nav.communicate()[1]
-        assert moving, "the navigation never commanded motion over the serial link"
+        _wait_until_moving(nav, lines)
         nav.send_signal(signal.SIGINT)
         _, err = nav.communicate(timeout=30)
         assert nav.returncode == 130, err
