@@ -213,6 +213,12 @@ class LocaliserConfig:
     #: Applies when the caller gives the map's neighbourhoods (the navigator does).
     min_margin: float = 0.04
     neighbourhood_hops: int = 2
+    #: Not in the paper. A goal image whose best node scores above ``t_change_node`` but not
+    #: ``t_milestone`` is still its goal when every node more than ``neighbourhood_hops`` arcs
+    #: away scores at least this much lower: the goal picture is one look under the day's
+    #: light, taken between two keyframes, and scores less than a walkthrough frame does
+    #: against its own node. 0: ``t_milestone`` only (the paper).
+    goal_image_margin: float = 0.04
     #: Not in the paper. After a full turn in which no view passed, turn on to the best view
     #: of that turn (above the floor, with the margin, best for at least two ticks in a row)
     #: and localise there when it matches again within ``second_look_tolerance``: under other
@@ -283,7 +289,8 @@ class LocaliserConfig:
         check_positive("full_turn_rad", self.full_turn_rad)
         check_count("max_search_ticks", self.max_search_ticks, 1)
         check_count("neighbourhood_hops", self.neighbourhood_hops, 0)
-        for name in ("min_margin", "second_look_tolerance", "first_view_margin", "first_view_slack"):
+        for name in ("min_margin", "goal_image_margin", "second_look_tolerance", "first_view_margin",
+                     "first_view_slack"):
             check_range(name, getattr(self, name), 0.0, 1.0, high_open=True)
         for name in ("second_look", "first_view", "relocalise_expected"):
             check_bool(name, getattr(self, name))
@@ -436,7 +443,8 @@ class NavigationConfig:
         ``full_turn_rad``: a second turn shows the same views."""
         return replace(
             self,
-            localiser=replace(self.localiser, min_margin=0.0, second_look=False, first_view=False,
+            localiser=replace(self.localiser, min_margin=0.0, goal_image_margin=0.0, second_look=False,
+                              first_view=False,
                               relocalise_hops=0, relocalise_expected=False,
                               relocalise_heading_tolerance_deg=180.0, from_belief="off"),
             supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0,

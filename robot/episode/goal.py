@@ -64,11 +64,13 @@ GOAL_RIVAL_MARGIN = 0.04
 
 
 def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
-                 thresholds: Thresholds) -> ResolvedGoal:
+                 thresholds: Thresholds, margin: float = 0.0, hops: int = GOAL_RIVAL_HOPS) -> ResolvedGoal:
     """Turn a goal (node id, image path or RGB image) into a node of the map.
 
     A goal image is localised against every node with ``t_milestone`` (turning the robot cannot
-    help a fixed goal picture, so no match is final: :class:`GoalNotLocalisedError`).
+    help a fixed goal picture, so no match is final: :class:`GoalNotLocalisedError`). With
+    ``margin`` > 0 (``localiser.goal_image_margin``) a best node above ``t_change_node`` is
+    accepted too when every node more than ``hops`` arcs from it scores ``margin`` lower.
     """
     if isinstance(goal, (bool, np.bool_)):
         raise UnknownNodeError(f"goal {goal!r} is neither a node id nor an image")
@@ -87,13 +89,37 @@ def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
         view = np.asarray(descriptor.describe([image]), dtype=np.float32)[0]
     except DescriptorError as exc:
         raise GoalImageError(f"goal {source}: {exc}") from None
+    row = topomap.similarities(view)
     try:
-        found = localise_goal_image(topomap.similarities(view), topomap.node_ids, thresholds.t_milestone)
+        found = localise_goal_image(row, topomap.node_ids, thresholds.t_milestone)
     except GoalNotLocalisedError as exc:
-        raise GoalNotLocalisedError(f"goal {source}: {exc}") from None
+        found = _unambiguous_goal(topomap, row, thresholds, margin, hops)
+        if found is None:
+            raise GoalNotLocalisedError(f"goal {source}: {exc}" + (
+                f" (nor above t_change_node {thresholds.t_change_node:.3f} by {margin:.2f} over every node "
+                f"{hops}+ arcs away)" if margin > 0 else "")) from None
     return ResolvedGoal(node=int(found.node), source=source, localisation=found, image=image,
-                        rivals=_goal_rivals(topomap, int(found.node), topomap.similarities(view)),
-                        descriptor=view)
+                        rivals=_goal_rivals(topomap, int(found.node), row), descriptor=view)
+
+
+def _unambiguous_goal(topomap: TopoMap, row: np.ndarray, thresholds: Thresholds, margin: float,
+                      hops: int) -> Optional[Localisation]:
+    """The best node when it scores above ``t_change_node`` and ``margin`` above every node more
+    than ``hops`` arcs from it; else None."""
+    import networkx as nx
+
+    if margin <= 0:
+        return None
+    ids = topomap.node_ids.tolist()
+    k = int(np.argmax(row))
+    best, score = int(ids[k]), float(row[k])
+    if score <= thresholds.t_change_node:
+        return None
+    near = nx.single_source_shortest_path_length(topomap.graph.to_undirected(as_view=True), best, cutoff=hops)
+    far = [float(s) for n, s in zip(ids, row) if n not in near]
+    if far and max(far) > score - margin:
+        return None
+    return Localisation(best_node=best, best_score=score, accepted=True, t_milestone=thresholds.t_milestone)
 
 
 def _goal_rivals(topomap: TopoMap, node: int, row: np.ndarray) -> tuple[int, ...]:

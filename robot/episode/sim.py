@@ -229,7 +229,9 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
             if plan.from_route:
                 goal_image = base.read().rgb
                 truth.teleport(start_pose)
-            resolved = plan.resolved or resolve_goal(goal_image, loaded.topomap, descriptor, nav_config.thresholds)
+            resolved = plan.resolved or resolve_goal(goal_image, loaded.topomap, descriptor, nav_config.thresholds,
+                                                     nav_config.localiser.goal_image_margin,
+                                                     nav_config.localiser.neighbourhood_hops)
             goal_pose = plan.pose if plan.pose is not None else loaded.topomap.node(resolved.node).true_pose
             setup = {
                 "world": spec.name, "map": str(loaded.path), "route": episode.route, "start": start_label,
