@@ -150,13 +150,16 @@ def test_without_the_sdk_the_flags_say_how_to_install_it(tmp_path, command):
     assert not (tmp_path / "x.rrd").exists()
 
 
-@pytest.mark.parametrize("path, says", [("out.txt", "ends in .rrd"), ("file/x.rrd", "is a file, not a folder")])
-def test_a_recording_path_that_cannot_work_is_refused_before_any_work(tmp_path, path, says):
+@pytest.mark.parametrize("flag, value, says", [("--rerun-save", "out.txt", "ends in .rrd"),
+                                               ("--rerun-save", "file/x.rrd", "is a file, not a folder"),
+                                               ("--rerun", "laptop:9876", "expected a viewer URL")])
+def test_a_recording_target_that_cannot_work_is_refused_before_any_work(tmp_path, flag, value, says):
     (tmp_path / "map").mkdir()
     (tmp_path / "file").write_text("")
+    target = str(tmp_path / value) if flag == "--rerun-save" else value
     proc = run_cli("robot.run", "--mode", "navigate", "--map", str(tmp_path / "map"), "--route", "short",
-                   "--rerun-save", str(tmp_path / path), timeout=120)
-    assert proc.returncode == 2 and says in proc.stderr and "--rerun-save" in proc.stderr, proc.stderr
+                   flag, target, timeout=120)
+    assert proc.returncode == 2 and says in proc.stderr and flag in proc.stderr, proc.stderr
 
 
 @pytest.mark.slow

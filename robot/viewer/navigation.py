@@ -14,8 +14,8 @@ What each step logs (entity paths, :mod:`robot.viewer.scene`):
 * time series: ``scores/*`` (filtered current and target, thirds, vote, goal image, best raw
   match), ``command/*`` (applied velocity), ``timing/*`` (ms per stage), ``belief/*``.
 
-It costs about a millisecond a step (``python -m robot.bench perf --rerun``), on the control
-thread: Rerun batches and sends from its own threads.
+It runs on the control thread (``python -m robot.bench perf --rerun`` measures what a step costs):
+Rerun batches and sends from its own threads.
 """
 
 from __future__ import annotations

@@ -26,6 +26,8 @@ INSTALL_HINT = "pip install -e '.[viz]' (the rerun-sdk package)"
 APPLICATION_ID = "limo-toponav"
 #: ``--rerun`` without a URL: spawn a local viewer (or join the one already running)
 SPAWN = "spawn"
+#: what a viewer's URL starts with
+URL_SCHEMES = ("rerun+http://", "rerun+https://", "rerun://")
 
 
 class ViewerUnavailableError(UsageError):
@@ -61,6 +63,8 @@ def viewer_target(args: argparse.Namespace) -> Optional[ViewerTarget]:
     live, save = getattr(args, "rerun", None), getattr(args, "rerun_save", None)
     if live is None and save is None:
         return None
+    if live is not None and live != SPAWN and not live.startswith(URL_SCHEMES):
+        raise UsageError(f"--rerun {live}: expected a viewer URL such as rerun+http://laptop:9876/proxy")
     if save is not None:
         check_output_file("--rerun-save", save)
         if save.suffix != ".rrd":
