@@ -17,7 +17,6 @@ every way out: Ctrl-C (130), SIGTERM (143), SIGHUP (129) and errors.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import sys
 from pathlib import Path
@@ -246,6 +245,7 @@ def _navigate_serial(args, config):
     from robot.episode.loop import run_episode
     from robot.episode.metrics import compute_metrics
     from robot.episode.setup import attach_descriptor, configure_thresholds
+    from robot.viewer.navigation import navigation_viewer
 
     if args.goal is None:
         raise UsageError("--hal serial needs --goal (a node id or a goal image); routes exist only in simulation")
@@ -259,7 +259,7 @@ def _navigate_serial(args, config):
     serial_config = replace(config.serial, **overrides)
     budget = args.max_steps if args.max_steps is not None else step_budget(config.episode, nav,
                                                                           serial_config.control_period_s)
-    with _navigation_viewer(args.viewer, f"navigate {serial_config.port}", loaded.topomap) as viewer, \
+    with navigation_viewer(args.viewer, f"navigate {serial_config.port}", loaded.topomap) as viewer, \
             LimoSerialBase(serial_config) as base:
         if viewer is not None:
             viewer.setup(goal.node, goal.image, goal.source)
@@ -272,20 +272,6 @@ def _navigate_serial(args, config):
                                                                         "goal_node": goal.node,
                                                                         "port": serial_config.port}})
     return metrics
-
-
-@contextlib.contextmanager
-def _navigation_viewer(target, name: str, topomap):
-    """A :class:`robot.viewer.navigation.NavigationLogger` on a recording for ``target``, or None."""
-    if target is None:
-        yield None
-        return
-    from robot.viewer.navigation import NavigationLogger
-    from robot.viewer.scene import navigation_blueprint
-    from robot.viewer.stream import Recording, rerun_sdk
-
-    with Recording(target, name, blueprint=navigation_blueprint(rerun_sdk())) as recording:
-        yield NavigationLogger(recording.rr, recording.stream, topomap)
 
 
 def _navigation_input_errors() -> tuple[type[BaseException], ...]:

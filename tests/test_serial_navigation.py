@@ -84,6 +84,15 @@ def _wait_until_moving(nav: subprocess.Popen, lines: "queue.Queue[str]") -> None
     raise AssertionError("the navigation never commanded motion over the serial link")
 
 
+def _assert_left_at_zero(lines: "queue.Queue[str]") -> None:
+    """The emulator's commanded velocity is zero right after the CLI exits (before its own
+    watchdog would zero it)."""
+    while not lines.empty():                                  # status from before the exit
+        lines.get_nowait()
+    after = _commands(lines, 0.4)
+    assert after and all(v == 0.0 and w == 0.0 for v, w in after), after
+
+
 @pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143), (signal.SIGHUP, 129)],
                          ids=["ctrl-c", "sigterm", "sighup"])
 def test_a_signal_during_serial_navigation_leaves_the_base_at_zero(serial_setup, signum, status):
@@ -101,11 +110,7 @@ def test_a_signal_during_serial_navigation_leaves_the_base_at_zero(serial_setup,
         _, err = nav.communicate(timeout=30)
         assert nav.returncode == status, err
         assert "stopped" in err and "Traceback" not in err
-        # the emulator's commanded velocity is zero right after the CLI exits (before its own watchdog)
-        while not lines.empty():                                  # status from before the exit
-            lines.get_nowait()
-        after = _commands(lines, 0.4)
-        assert after and all(v == 0.0 and w == 0.0 for v, w in after), after
+        _assert_left_at_zero(lines)
     finally:
         emu.send_signal(signal.SIGINT)
         emu.communicate(timeout=10)
@@ -157,10 +162,7 @@ def test_a_serial_run_recorded_for_the_viewer_keeps_its_recording_after_ctrl_c(s
         nav.send_signal(signal.SIGINT)
         _, err = nav.communicate(timeout=30)
         assert nav.returncode == 130, err
-        while not lines.empty():
-            lines.get_nowait()
-        after = _commands(lines, 0.4)
-        assert after and all(v == 0.0 and w == 0.0 for v, w in after), after
+        _assert_left_at_zero(lines)
     finally:
         emu.send_signal(signal.SIGINT)
         emu.communicate(timeout=10)

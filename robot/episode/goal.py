@@ -104,30 +104,24 @@ def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
 
 def _unambiguous_goal(topomap: TopoMap, row: np.ndarray, thresholds: Thresholds, margin: float,
                       hops: int) -> Optional[Localisation]:
-    """The best node when it scores above ``t_change_node`` and ``margin`` above every node more
-    than ``hops`` arcs from it; else None."""
-    import networkx as nx
-
+    """The best node when it scores above ``t_change_node`` and no node more than ``hops`` arcs
+    from it comes within ``margin``; else None."""
     if margin <= 0:
         return None
-    ids = topomap.node_ids.tolist()
     k = int(np.argmax(row))
-    best, score = int(ids[k]), float(row[k])
-    if score <= thresholds.t_change_node:
-        return None
-    near = nx.single_source_shortest_path_length(topomap.graph.to_undirected(as_view=True), best, cutoff=hops)
-    far = [float(s) for n, s in zip(ids, row) if n not in near]
-    if far and max(far) > score - margin:
+    best, score = int(topomap.node_ids[k]), float(row[k])
+    if score <= thresholds.t_change_node or _goal_rivals(topomap, best, row, hops, margin):
         return None
     return Localisation(best_node=best, best_score=score, accepted=True, t_milestone=thresholds.t_milestone)
 
 
-def _goal_rivals(topomap: TopoMap, node: int, row: np.ndarray) -> tuple[int, ...]:
+def _goal_rivals(topomap: TopoMap, node: int, row: np.ndarray, hops: int = GOAL_RIVAL_HOPS,
+                 margin: float = GOAL_RIVAL_MARGIN) -> tuple[int, ...]:
+    """Nodes more than ``hops`` arcs from ``node`` that score within ``margin`` of it, best first."""
     import networkx as nx
 
-    near = nx.single_source_shortest_path_length(topomap.graph.to_undirected(as_view=True), node,
-                                                 cutoff=GOAL_RIVAL_HOPS)
+    near = nx.single_source_shortest_path_length(topomap.graph.to_undirected(as_view=True), node, cutoff=hops)
     ids = topomap.node_ids.tolist()
     best = float(row[ids.index(node)])
     return tuple(int(n) for n, score in sorted(zip(ids, row), key=lambda t: -t[1])
-                 if n not in near and score >= best - GOAL_RIVAL_MARGIN)
+                 if n not in near and score >= best - margin)

@@ -23,6 +23,7 @@ the true pose of the goal node (the place the map knows for that node).
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,9 +45,8 @@ from robot.episode.setup import attach_descriptor, configure_thresholds
 from robot.episode.start import StartError, StartSpec, resolve_start, route_of, route_pose
 from robot.episode.step_log import StepLog
 from robot.settings import StackConfig
-from robot.viewer.navigation import NavigationLogger
-from robot.viewer.scene import navigation_blueprint
-from robot.viewer.stream import Recording, ViewerTarget, rerun_sdk
+from robot.viewer.navigation import NavigationLogger, navigation_viewer
+from robot.viewer.stream import ViewerTarget
 from sim.hal import SimLimo
 from sim.topdown import render_topdown
 from sim.world_spec import WorldSpec
@@ -219,9 +219,9 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
         if outputs.video_path is not None else None
     bar = tqdm(total=budget, unit="step", desc="navigating", disable=not outputs.progress, leave=False)
     log = StepLog(outputs.step_log, loaded.topomap.node_ids) if outputs.step_log is not None else None
-    recording = Recording(outputs.viewer, f"navigate {spec.name} {episode.route or ''}".strip(),
-                          blueprint=navigation_blueprint(rerun_sdk())) if outputs.viewer is not None else None
-    viewer = NavigationLogger(recording.rr, recording.stream, loaded.topomap) if recording is not None else None
+    closing = contextlib.ExitStack()
+    viewer = closing.enter_context(navigation_viewer(outputs.viewer, f"navigate {spec.name} {episode.route or ''}"
+                                                     .strip(), loaded.topomap))
     try:
         with base:
             truth = base.ground_truth
@@ -258,8 +258,7 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
             video.close()
         if log is not None:
             log.close()
-        if recording is not None:
-            recording.close()
+        closing.close()
 
     metrics = compute_metrics(outcome, recorder.poses, goal_pose, shortest, collisions, toppled)
     if outputs.result_path is not None:

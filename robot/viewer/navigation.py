@@ -20,8 +20,9 @@ Rerun batches and sends from its own threads.
 
 from __future__ import annotations
 
+import contextlib
 import time
-from typing import Any, Optional
+from typing import Any, Iterator, Optional
 
 import numpy as np
 
@@ -29,6 +30,7 @@ from core.hal import Pose2D
 from maps.graph import TopoMap
 from robot.episode.loop import StepRecord
 from robot.viewer import scene
+from robot.viewer.stream import Recording, ViewerTarget, rerun_sdk
 
 #: colours (RGB) of the marks
 _CURRENT = (40, 120, 255)
@@ -192,3 +194,14 @@ class NavigationLogger:
         self.stream.log(f"{scene.NAVIGATOR}/events", self.rr.TextLog(
             f"step {record.index}: {s.state.value}, node {s.current_node} -> {s.target_node}: {s.reason}",
             level=level))
+
+
+@contextlib.contextmanager
+def navigation_viewer(target: Optional[ViewerTarget], name: str, topomap: TopoMap) -> Iterator[Optional[NavigationLogger]]:
+    """A :class:`NavigationLogger` on a recording for ``target`` (None: no viewer, yields None);
+    the recording is closed, its file in place, however the block ends."""
+    if target is None:
+        yield None
+        return
+    with Recording(target, name, blueprint=scene.navigation_blueprint(rerun_sdk())) as recording:
+        yield NavigationLogger(recording.rr, recording.stream, topomap)
