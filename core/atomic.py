@@ -236,6 +236,27 @@ class AtomicFolder:
 
     def commit(self) -> Path:
         """fsync everything, then make the folder the target in one step; returns the target."""
+        self._fsync()
+        self._swap_into_place()
+        return self.target
+
+    def commit_unless_present(self) -> bool:
+        """Like :meth:`commit`, but a target that exists already (another writer of the same
+        content got there first, and may be reading it) stays: this folder is dropped. True when
+        this folder became the target."""
+        self._fsync()
+        try:
+            os.rename(self.path, self.target)       # refuses a non-empty folder at the target
+        except OSError:
+            if not self.target.exists():
+                raise
+            self.discard()
+            return False
+        fsync_dir(self.target.parent)
+        self.checkpoint("rename into place")
+        return True
+
+    def _fsync(self) -> None:
         for folder, _, files in os.walk(self.path, topdown=False):
             for name in files:
                 p = Path(folder) / name
@@ -244,8 +265,6 @@ class AtomicFolder:
                         os.fsync(fh.fileno())
             fsync_dir(folder)
         self.checkpoint("fsync")
-        self._swap_into_place()
-        return self.target
 
     def discard(self) -> None:
         """Remove the temporary folder (after an exchange it holds the previous folder)."""

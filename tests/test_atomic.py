@@ -63,6 +63,19 @@ def test_atomic_folder_is_swapped_in_whole_or_not_at_all(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rec"]
 
 
+def test_a_folder_published_once_keeps_the_first_writers_copy(tmp_path):
+    target = tmp_path / "cache" / "m"
+    with AtomicFolder(target) as first:
+        first.write("a.txt", b"first")
+        assert first.commit_unless_present()
+    inode = target.stat().st_ino
+    with AtomicFolder(target) as second:
+        second.write("a.txt", b"second")
+        assert not second.commit_unless_present()
+    assert target.stat().st_ino == inode and (target / "a.txt").read_bytes() == b"first"
+    assert [p.name for p in target.parent.iterdir()] == ["m"]          # the loser left nothing
+
+
 def test_debris_of_a_dead_writer_is_removed_and_a_set_aside_folder_restored(tmp_path):
     target = tmp_path / "m"
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)

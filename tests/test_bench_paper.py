@@ -410,3 +410,92 @@ def test_the_papers_method_runs_as_its_own_method(serial_run, tmp_path):
     assert len(reasons) == result["metrics"]["steps"]
     for ours in ("the map turned", "second look", "ambiguous: margin"):
         assert not any(ours in r for r in reasons), ours
+
+
+def _comparable(folder: Path) -> dict:
+    data = json.loads((folder / "results.json").read_text())
+    data.pop("command")
+    return data
+
+
+def _copy_inputs(out: Path, other: Path, argv: list[str], workers: list[str]) -> list[str]:
+    """The serial run's command for another folder (maps and head copied: mapping is not the point)."""
+    shutil.copytree(out / "maps", other / "maps")
+    shutil.copy(out / "tiny_head.pt", other / "tiny_head.pt")
+    moved = [a.replace(str(out), str(other)) for a in argv]
+    at = moved.index("--workers")
+    return moved[:at] + workers + moved[at + 2:]
+
+
+def _outputs(folder: Path) -> dict:
+    """Trace pictures, step logs and their views by name (step logs by their line count: they hold
+    timings)."""
+    found = {p.name: p.stat().st_size > 5000 for p in (folder / "traces").glob("*")}
+    found.update({p.name: len(p.read_text().splitlines()) if p.suffix == ".jsonl" else p.stat().st_size > 0
+                  for p in (folder / "replays").glob("*")})
+    return found
+
+
+def test_ray_gives_the_same_results_as_a_serial_run(serial_run, tmp_path):
+    """A local Ray instance of 2 CPUs; maps, head and world file travel through the object store and
+    the traces and step logs come back to the driver."""
+    out, argv = serial_run
+    other = tmp_path / "ray"
+    assert paper.main(_args(*_copy_inputs(out, other, argv, ["--ray", "--workers", "2"]))) == 0
+    assert _comparable(other) == _comparable(out)
+    assert _outputs(other) == _outputs(out) and len(_outputs(out)) >= 3
+    timings = json.loads((other / "timings.json").read_text())
+    assert len(timings) == 3 and all(":" in t["worker"] for t in timings.values())
+    import ray
+    assert not ray.is_initialized()           # the instance it started is shut down
+
+
+def _episode_workers() -> list[int]:
+    """Process ids of Ray workers running an episode (Ray names the process after its task)."""
+    pids = []
+    for proc in Path("/proc").iterdir():
+        try:
+            if proc.name.isdigit() and (proc / "cmdline").read_bytes().startswith(b"ray::_episode_task"):
+                pids.append(int(proc.name))
+        except OSError:
+            continue
+    return pids
+
+
+def test_an_episode_whose_worker_is_killed_runs_again_and_the_results_hold(serial_run, tmp_path):
+    """SIGKILL of a worker in the middle of an episode: Ray reruns the task, the run finishes with
+    the serial run's results, and no half-written output is left (shared folder: workers write
+    there themselves)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out, argv = serial_run
+    other = tmp_path / "ray-killed"
+    command = _copy_inputs(out, other, argv, ["--ray", "--workers", "2", "--ray-shared"])
+    proc = subprocess.Popen([sys.executable, "-m", "robot.bench", "paper", *command],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    killed = None
+    try:
+        deadline = time.monotonic() + 240
+        while killed is None and time.monotonic() < deadline and proc.poll() is None:
+            running = _episode_workers()
+            if running:
+                time.sleep(2.0)                # into the episode: the world and the map are loaded
+                if running[0] in _episode_workers():
+                    os.kill(running[0], signal.SIGKILL)
+                    killed = running[0]
+            time.sleep(0.2)
+        stdout, stderr = proc.communicate(timeout=600)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert killed is not None, "no episode task was seen running"
+    assert proc.returncode == 0, stderr
+    assert _comparable(other) == _comparable(out)
+    timings = json.loads((other / "timings.json").read_text())
+    assert str(killed) not in {t["worker"].rsplit(":", 1)[1] for t in timings.values()}
+    assert _outputs(other) == _outputs(out)
+    assert not [p for d in ("traces", "replays", "episodes") for p in (other / d).iterdir() if p.name.startswith(".")]

@@ -35,12 +35,13 @@ ALLOWED = {
 }
 #: third-party libraries a layer must not import (directly)
 FORBIDDEN = {
-    "core": {"torch", "pybullet", "pybullet_data", "serial", "cv2"},
-    "controllers": {"torch", "pybullet", "pybullet_data", "serial", "cv2"},
-    "maps": {"torch", "pybullet", "pybullet_data", "serial"},
-    "descriptors": {"pybullet", "pybullet_data", "serial"},
-    "limo": {"torch", "pybullet", "pybullet_data"},
-    "sim": {"torch", "serial"},
+    "core": {"torch", "pybullet", "pybullet_data", "serial", "cv2", "ray"},
+    "controllers": {"torch", "pybullet", "pybullet_data", "serial", "cv2", "ray"},
+    "maps": {"torch", "pybullet", "pybullet_data", "serial", "ray"},
+    "descriptors": {"pybullet", "pybullet_data", "serial", "ray"},
+    "limo": {"torch", "pybullet", "pybullet_data", "ray"},
+    "sim": {"torch", "serial", "ray"},
+    "robot": {"ray"},          # Ray is the evaluation harness's (robot.bench), never the robot's
 }
 
 

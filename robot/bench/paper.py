@@ -4,6 +4,7 @@ the map sparsity study.
     python -m robot.bench paper                      # 14 trials per route, both methods, sparsity study
     python -m robot.bench paper --quick              # 2 trials of hospital easy: a smoke test
     python -m robot.bench paper --trials 5 --routes hospital:hard --methods ours --workers 2
+    python -m robot.bench paper --ray auto           # every episode a Ray task on a cluster
 
 What it does, in ``--out`` (default ``runs/paper``):
 
@@ -15,8 +16,9 @@ What it does, in ``--out`` (default ``runs/paper``):
 3. ``episodes/``: every trial's result as it finishes; a re-run reuses those whose trial
    description is unchanged (an interrupted run resumes). Trials start at the route start with
    a random offset (up to 0.3 m, 15 deg) and appearance seed 1, 2, ... (``robot.bench.trials``).
-4. ``results.json`` (every episode: metrics, seeds, trajectory; no wall-clock values, so serial
-   and ``--workers N`` runs are identical), ``timings.json`` (wall time per episode and step),
+4. ``results.json`` (every episode: metrics, seeds, trajectory; no wall-clock values, so serial,
+   ``--workers N`` and ``--ray`` runs are identical), ``timings.json`` (wall time per episode and
+   step, and with ``--ray`` the host and process that ran it),
    ``results.md`` (the paper's table layout with the paper's numbers), ``sr.png``,
    ``trajectories_<world>_<route>.png``, ``sparsity.png``, and a trace picture per episode in
    ``traces/``.
@@ -29,9 +31,7 @@ import json
 import os
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, replace
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Optional
 
@@ -39,6 +39,8 @@ from tqdm import tqdm
 
 from core.atomic import write_json
 from core.shutdown import exit_status, interrupted_by
+from robot.bench.cluster import LOCAL, ClusterError, EpisodeLost, RayRunner
+from robot.bench.runners import Job, LocalRunner, TrialRunner
 from robot.bench.trials import (
     DEFAULT_METHODS,
     METHODS,
@@ -47,9 +49,7 @@ from robot.bench.trials import (
     episode_path,
     plan_trials,
     portable_trial,
-    run_trial,
     step_log_path,
-    worker_init,
 )
 
 DEFAULT_ROUTES = ("hospital:easy", "hospital:moderate", "hospital:hard", "office:main")
@@ -65,8 +65,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=int, default=14, help="episodes per route and method (default 14, as the paper)")
     parser.add_argument("--out", type=Path, default=Path("runs/paper"), help="output folder (default runs/paper)")
     parser.add_argument("--workers", type=int, default=None,
-                        help="episodes run in this many processes (default: the number of CPUs); results do not "
-                             "depend on it")
+                        help="episodes run in this many processes (default: the number of CPUs; with --ray, the "
+                             "local instance's CPUs); results do not depend on it")
+    parser.add_argument("--ray", nargs="?", const=LOCAL, default=None, metavar="ADDRESS",
+                        help="run every episode as a Ray task: on a local instance (no ADDRESS), or on the cluster "
+                             "at ADDRESS (auto, HOST:PORT, ray://HOST:PORT); pip install -e '.[cluster]'")
+    parser.add_argument("--ray-shared", action="store_true",
+                        help="with --ray: --out is on a file system every node mounts at the same path (workers "
+                             "read maps and write traces there; otherwise they travel through Ray's object store)")
     parser.add_argument("--seed", type=int, default=0, help="base seed of the trials' offsets (default 0)")
     parser.add_argument("--routes", default=",".join(DEFAULT_ROUTES),
                         help="comma-separated WORLD:ROUTE list (default: %(default)s); WORLD may be a world file")
@@ -205,10 +211,11 @@ def _reusable(out: Path, trial: Trial) -> Optional[dict]:
     return {**done, "trial": asdict(trial)}
 
 
-def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Optional[str],
-               progress: bool, step_logs: bool = False) -> list[dict]:
-    """Run (or reuse) every trial; results in the order of ``trials``. ``step_logs``: each episode
-    run also writes its per-step log (:func:`step_log_path`)."""
+def run_trials(trials: list[Trial], out: Path, runner: TrialRunner, progress: bool,
+               step_logs: bool = False) -> list[dict]:
+    """Run (or reuse) every trial on ``runner``; results in the order of ``trials``, each episode's
+    file written as it finishes. ``step_logs``: each episode run also writes its per-step log
+    (:func:`step_log_path`)."""
     results: dict[int, dict] = {}
     todo = []
     for i, trial in enumerate(trials):
@@ -222,36 +229,37 @@ def run_trials(trials: list[Trial], out: Path, workers: int, config_path: Option
     bar = tqdm(total=len(trials), initial=len(results), unit="episode", desc="episodes", disable=not progress)
     if step_logs:
         (out / "replays").mkdir(parents=True, exist_ok=True)
-
-    def log_of(i: int) -> Optional[str]:
-        return str(step_log_path(out, trials[i])) if step_logs else None
-
-    def finish(i: int, result: dict) -> None:
-        results[i] = result
-        write_json(episode_path(out, trials[i]), {**result, "trial": portable_trial(result["trial"], out)})
-        m = result["metrics"]
-        bar.set_postfix_str(f"{trials[i].key}: {'ok' if m['success'] else 'FAIL'}", refresh=False)
-        bar.update(1)
-
+    jobs = [Job(i, trials[i], str(step_log_path(out, trials[i])) if step_logs else None) for i in todo]
     try:
-        if workers <= 1 or len(todo) <= 1:
-            worker_init()
-            for i in todo:
-                finish(i, run_trial(trials[i], config_path, step_log=log_of(i)))
-        else:
-            # spawn: a fresh interpreter per worker (no forked PyBullet or torch state)
-            with ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=get_context("spawn"),
-                                     initializer=worker_init) as pool:
-                futures = {pool.submit(run_trial, trials[i], config_path, step_log=log_of(i)): i for i in todo}
-                pending = set(futures)
-                from concurrent.futures import FIRST_COMPLETED, wait
-                while pending:
-                    finished, pending = wait(pending, return_when=FIRST_COMPLETED)
-                    for f in finished:
-                        finish(futures[f], f.result())
+        for i, result in runner.results(jobs):
+            results[i] = result
+            write_json(episode_path(out, trials[i]), {**result, "trial": portable_trial(result["trial"], out)})
+            m = result["metrics"]
+            bar.set_postfix_str(f"{trials[i].key}: {'ok' if m['success'] else 'FAIL'}", refresh=False)
+            bar.update(1)
     finally:
         bar.close()
     return [results[i] for i in range(len(trials))]
+
+
+def runner_choice(args: argparse.Namespace) -> tuple[int | None, Optional[str]]:
+    """``(workers, ray)`` from ``--workers`` / ``--ray`` / ``--ray-shared``, checked: ``ray`` is None
+    (local processes), :data:`LOCAL` (a local Ray instance) or a cluster address."""
+    if args.workers is not None and args.workers < 1:
+        raise PaperBenchError(f"--workers must be >= 1, got {args.workers}")
+    if args.ray_shared and args.ray is None:
+        raise PaperBenchError("--ray-shared needs --ray")
+    if args.ray not in (None, LOCAL) and args.workers is not None:
+        raise PaperBenchError(f"--workers with --ray {args.ray}: the cluster's CPUs set how many episodes run at "
+                              "once (--workers sizes a local instance only)")
+    return args.workers, args.ray
+
+
+def make_runner(workers: Optional[int], ray: Optional[str], shared: bool, config_path: Optional[str]) -> TrialRunner:
+    """The runner of :func:`runner_choice`'s answer (a Ray runner connects here)."""
+    if ray is None:
+        return LocalRunner(workers if workers is not None else (os.cpu_count() or 1), config_path)
+    return RayRunner(None if ray == LOCAL else ray, workers, config_path, shared=shared)
 
 
 # -- main -----------------------------------------------------------------------------------------
@@ -277,9 +285,7 @@ def main(args: argparse.Namespace) -> int:
         sparsity_trials = trials if sparsity_trials is None else sparsity_trials
         if levels and sparsity_trials < 1:
             raise PaperBenchError(f"--sparsity-trials must be >= 1, got {sparsity_trials}")
-        workers = args.workers if args.workers is not None else (os.cpu_count() or 1)
-        if workers < 1:
-            raise PaperBenchError(f"--workers must be >= 1, got {workers}")
+        workers, ray = runner_choice(args)
         config = load_stack_config(args.config)
         specs = {}
         for world, route in routes + ([tuple(args.sparsity_route.rsplit(":", 1))] if levels else []):
@@ -294,6 +300,13 @@ def main(args: argparse.Namespace) -> int:
     out: Path = args.out
     progress = not args.quiet
     default_sparsity = float(config.mapping.sparsity)
+    config_path = None if args.config is None else str(args.config)
+    runner = None
+    try:         # before the maps: a cluster that cannot be reached is told at once, not after mapping
+        runner = None if args.report_only else make_runner(workers, ray, args.ray_shared, config_path)
+    except ClusterError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     try:
         build = not args.report_only
         maps = {world: ensure_map(world, default_sparsity, config, out, progress, build) for world, _ in routes}
@@ -337,21 +350,26 @@ def main(args: argparse.Namespace) -> int:
                 study += plan_trials(specs[s_world], s_world, s_route, ["ours"], sparsity_trials, args.seed,
                                      level_map, shortest_of(s_world, s_route), sparsity=level,
                                      trace_dir=trace_dir, config_digest=digest)
-        config_path = None if args.config is None else str(args.config)
-        if args.report_only:
+        if runner is None:
             results = [_reusable(out, t) for t in plan + study]
             if not any(results):
                 raise PaperBenchError(f"no finished episode of this command in {out / 'episodes'}: run it "
                                       "without --report-only")
         else:
-            results = run_trials(plan + study, out, workers, config_path, progress, step_logs=args.step_logs)
+            results = run_trials(plan + study, out, runner, progress, step_logs=args.step_logs)
     except PaperBenchError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except EpisodeLost as exc:
+        print(f"error: {exc}; run the same command to resume", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as exc:
         print(f"{interrupted_by(exc)}: finished episodes are kept in {out / 'episodes'}; run the same command to "
               "resume, or add --report-only for the report of those finished", file=sys.stderr)
         return exit_status(exc)
+    finally:
+        if runner is not None:
+            runner.close()
     argv = sys.argv[2:] if sys.argv[1:2] == ["paper"] else sys.argv[1:]
     command = "python -m robot.bench paper " + " ".join(a for a in argv if a != "--report-only")
     written = write_report(out, [r for r in results[:len(plan)] if r], [r for r in results[len(plan):] if r],
@@ -368,5 +386,5 @@ def main(args: argparse.Namespace) -> int:
         print(f"report of {finished} finished of {len(results)} planned episodes"
               + ("" if finished == len(results) else " (partial: run the command without --report-only to finish)"))
     else:
-        print(f"{len(results)} episodes, {elapsed / 60:.1f} min wall with {workers} worker(s)")
+        print(f"{len(results)} episodes, {elapsed / 60:.1f} min wall with {runner.label}")
     return 0
