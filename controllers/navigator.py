@@ -21,12 +21,18 @@ States (:class:`NavState`):
   ``localiser.belief_hold_ticks``, then turns counter-clockwise, until the belief's mode holds
   ``belief.confidence`` of the mass and the robot faces along the route there; FAILED after
   ``localiser.max_search_ticks``.
-* NAVIGATING: following the planned path; actions from the two-cycle voter.
-* (weak vote) the first ``blind_forward_ticks`` ticks without a vote follow the best third
-  anyway (LEFT / FORWARD / RIGHT): the target is more likely ahead than behind.
-* SEARCHING: no third has seen the target for ``no_vote_patience_ticks`` more ticks; turns
-  counter-clockwise in place until one does (back to NAVIGATING), or re-localises after a
-  full turn.
+* NAVIGATING: following the planned path; the action chooser given to the constructor
+  (:mod:`controllers.choosers`) picks the actions: the two-cycle voter by default (with its weak
+  vote: the first ticks without a vote follow the best third), or a learned policy (the
+  SPTM-style baseline: same localisation, planning and node switching, a classifier picks the
+  action; it never searches and gets no corner turns).
+* TURNING: the corner turn. With ``node_headings`` (the mapping drive's odometry heading per
+  node) and ``heading_hints`` on, after a node is confirmed, when the drive turned from it to
+  the target by at least ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on
+  the odometry heading) before the voter steers again: at corners the target is beside the
+  field of view.
+* SEARCHING: the voter has not seen the target for its patience; turns counter-clockwise in
+  place until a third sees it (back to NAVIGATING), or re-localises after a full turn.
 * RELOCALISING: the supervisor reported the robot lost; localisation as in LOCALISING, but
   only nodes from which the goal is reachable count, and the stretch of the old plan around
   the last node is accepted as the best of the map above ``t_lost`` (other nodes need
@@ -39,21 +45,43 @@ States (:class:`NavState`):
   ``localiser.relocalise_heading_tolerance_deg``: the map-to-odometry heading offset is the
   median of those at the last ``localiser.relocalise_heading_confirmations`` confirmations (1:
   the anchor's alone).
-* (learned policy) with ``policy`` passed to :meth:`Navigator.tick`, the action while
-  NAVIGATING comes from ``policy(target_node)`` instead of the voter (the SPTM-style baseline:
-  same localisation, planning and node switching, a classifier picks the action); there is no
-  weak vote and no search turn then, the supervisor's LOST still re-localises.
-* (turn hints) with ``node_headings`` (the mapping drive's odometry heading per node; pass them
-  whenever the map has them, each use has its own switch) and ``heading_hints`` on: after a
-  node is confirmed, when the drive turned from it to the target by at least
-  ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on the odometry heading)
-  before the voter steers again: at corners the target is beside the field of view.
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero. With a
   goal image (``goal_score`` passed to :meth:`Navigator.tick`) and
   ``supervisor.goal_image_arrival``, the settle after the goal node's confirmation stops
   where the view's similarity to the goal image itself peaked above ``t_milestone``.
 * FAILED (final): cannot place itself, goal unreachable, or too many re-localisations;
   ``reason`` says which; velocity zero.
+
+Transitions (:data:`TRANSITIONS`; the navigator refuses any other):
+
+    ============  ===================================================  ============
+    from          when                                                 to
+    ============  ===================================================  ============
+    LOCALISING    a node matched (or the belief settled) and a plan    NAVIGATING
+    LOCALISING    nothing matched in a full turn, or no plan           FAILED
+    NAVIGATING    a node confirmed where the map turns                 TURNING
+    NAVIGATING    the chooser lost sight of the target                 SEARCHING
+    NAVIGATING    the supervisor reports the robot lost                RELOCALISING
+    NAVIGATING    the goal reached                                     ARRIVED
+    NAVIGATING    lost once more than ``max_relocalisations``          FAILED
+    TURNING       facing the map's heading (or no heading), a node     NAVIGATING
+    TURNING       the supervisor reports the robot lost                RELOCALISING
+    TURNING       the goal reached                                     ARRIVED
+    TURNING       lost once more than ``max_relocalisations``          FAILED
+    SEARCHING     a third sees the target, or a node confirmed         NAVIGATING
+    SEARCHING     a full turn without it, or the supervisor's LOST     RELOCALISING
+    SEARCHING     the goal reached                                     ARRIVED
+    SEARCHING     lost once more than ``max_relocalisations``          FAILED
+    RELOCALISING  a node matched (or the belief settled) and a plan    NAVIGATING
+    RELOCALISING  nothing matched in a full turn, or no plan           FAILED
+    ============  ===================================================  ============
+
+Entry actions (one place: ``Navigator._enter``): LOCALISING and RELOCALISING start a new
+localiser and a new turn of the search (RELOCALISING also counts the re-localisation, resets
+the chooser and drops the plan's supervisor and the corner turn); NAVIGATING ends the turn of
+a search; SEARCHING starts one; TURNING none; ARRIVED and FAILED keep their step as the final
+one (velocity zero). The chooser is reset whenever its target changes or it missed ticks: a
+new plan, a node confirmed, a corner turned.
 """
 
 from __future__ import annotations
@@ -69,6 +97,7 @@ import numpy as np
 
 from controllers.actions import Action, action_velocity
 from controllers.belief import BeliefSnapshot
+from controllers.choosers import ActionChooser, ChooserInputError, PolicyChooser, TargetView, VoterChooser
 from controllers.config import NavigationConfig
 from controllers.localisation import (
     InitialLocaliser,
@@ -83,7 +112,7 @@ from controllers.localisation import (
 from controllers.planner import GlobalPlanner, PlanningError
 from controllers.similarity_filter import SimilarityFilter
 from controllers.supervisor import NodeSwitchSupervisor, SupervisorDecision, SupervisorState
-from controllers.voter import Third, ThirdScores, TwoCycleVoter, VoteKind, VoteResult
+from controllers.voter import ThirdScores, VoteResult
 from core.angles import wrap_angle
 from core.hal import VelocityCommand
 
@@ -91,10 +120,6 @@ NodeId = Hashable
 ThirdsInput = Union[Callable[[NodeId], Sequence[float]], np.ndarray, None]
 #: A learned action policy for this tick: target node -> action (see the module docstring).
 PolicyInput = Optional[Callable[[NodeId], "Action"]]
-
-
-#: The action while no third passes t_limited_control (a weak vote, see blind_forward_ticks).
-_WEAK_ACTION = {Third.LEFT: Action.LEFT, Third.MIDDLE: Action.FORWARD, Third.RIGHT: Action.RIGHT}
 
 
 class NavigationInputError(ValueError):
@@ -105,6 +130,7 @@ class NavState(enum.Enum):
     LOCALISING = "localising"
     SEARCHING = "searching"
     NAVIGATING = "navigating"
+    TURNING = "turning"
     RELOCALISING = "relocalising"
     ARRIVED = "arrived"
     FAILED = "failed"
@@ -139,16 +165,34 @@ class NavigationStep:
         return self.state in (NavState.ARRIVED, NavState.FAILED)
 
 
+_FINAL = frozenset({NavState.FAILED})
+#: state -> the states it may go to (the module docstring's table)
+TRANSITIONS: Mapping[NavState, frozenset] = {
+    NavState.LOCALISING: frozenset({NavState.NAVIGATING}) | _FINAL,
+    NavState.NAVIGATING: frozenset({NavState.TURNING, NavState.SEARCHING, NavState.RELOCALISING,
+                                    NavState.ARRIVED}) | _FINAL,
+    NavState.TURNING: frozenset({NavState.NAVIGATING, NavState.RELOCALISING, NavState.ARRIVED}) | _FINAL,
+    NavState.SEARCHING: frozenset({NavState.NAVIGATING, NavState.RELOCALISING, NavState.ARRIVED}) | _FINAL,
+    NavState.RELOCALISING: frozenset({NavState.NAVIGATING}) | _FINAL,
+    NavState.ARRIVED: frozenset(),
+    NavState.FAILED: frozenset(),
+}
+
+
 class Navigator:
     """Tick-based navigation from wherever the robot is to ``goal_node`` of the map.
 
     ``graph`` is the map's directed graph (arc attribute ``weight``), ``node_ids[j]`` the node
-    of column ``j`` of every similarity row (every graph node needs a column).
+    of column ``j`` of every similarity row (every graph node needs a column). ``chooser``: what
+    picks the actions while navigating (default: the two-cycle voter of ``config``,
+    :class:`controllers.choosers.VoterChooser`; :class:`controllers.choosers.PolicyChooser` for a
+    learned policy passed to every :meth:`tick`).
     """
 
     def __init__(self, graph: nx.DiGraph, node_ids: Sequence[NodeId], goal_node: NodeId,
                  config: NavigationConfig = NavigationConfig(),
-                 node_headings: Optional[Mapping[NodeId, float]] = None):
+                 node_headings: Optional[Mapping[NodeId, float]] = None,
+                 chooser: Optional[ActionChooser] = None):
         self.planner = GlobalPlanner(graph)
         self.node_ids = plain_node_ids(node_ids)
         if len(set(self.node_ids)) != len(self.node_ids):
@@ -168,8 +212,7 @@ class Navigator:
         self.config = config
         self._column = {node: j for j, node in enumerate(self.node_ids)}
         self.filter = SimilarityFilter(len(self.node_ids), config.filter)
-        self.voter = TwoCycleVoter(config.thresholds.t_limited_control,
-                                   hold_executed=config.hold_action_between_votes)
+        self.chooser: ActionChooser = VoterChooser.from_config(config) if chooser is None else chooser
         undirected = self._undirected = graph.to_undirected(as_view=True)
         hops = config.localiser.neighbourhood_hops
         self._neighbourhoods = {n: frozenset(nx.single_source_shortest_path_length(undirected, n, cutoff=hops))
@@ -177,15 +220,14 @@ class Navigator:
         self._goal_reachers = frozenset(nx.ancestors(graph, goal_node) | {goal_node})
         self._state = NavState.LOCALISING
         self._localiser = self._new_localiser()
+        self._search: Optional[TurnMeter] = TurnMeter()    # the turn of the current search
+        self._search_ticks = 0
         self._supervisor: Optional[NodeSwitchSupervisor] = None
         self._plan: Tuple[NodeId, ...] = ()
         self._visited: list = []
         self._ticks = 0
         self._relocalisations = 0
         self._plans = 0
-        self._no_vote_ticks = 0
-        self._search: Optional[TurnMeter] = None
-        self._search_ticks = 0
         self._final: Optional[NavigationStep] = None
         self._planning_error: Optional[PlanningError] = None
         self._contrast: Optional[np.ndarray] = None
@@ -257,8 +299,9 @@ class Navigator:
         or None when the base has neither. ``thirds_contrast``: optional ``(N, 3)`` contrast of
         the thirds against all nodes (:func:`controllers.voter.contrast_thirds`); when given, a
         third votes when its contrast, not its cosine, exceeds ``t_limited_control``.
-        ``policy``: optional ``policy(target_node) -> Action`` for this tick's view; when given it
-        replaces the voter while navigating (a learned baseline; ``thirds`` are not needed then).
+        ``policy``: ``policy(target_node) -> Action`` for this tick's view, which a
+        :class:`controllers.choosers.PolicyChooser` asks (a learned baseline; ``thirds`` are not
+        needed then).
         ``belief``: the belief over the map after this view (:meth:`controllers.belief.NodeBelief.snapshot`),
         which places the robot when ``localiser.from_belief`` asks for it. ``goal_score``: the
         view's cosine similarity to the goal image, when the goal is an image: the final approach
@@ -270,12 +313,39 @@ class Navigator:
             raise NavigationInputError(str(exc)) from None
         if self._final is not None:
             return self._final
+        if policy is not None and not isinstance(self.chooser, PolicyChooser):
+            raise NavigationInputError(f"a policy was passed, but this navigator's actions come from its "
+                                       f"{self.chooser.name}: build it with chooser=PolicyChooser()")
         self._ticks += 1
         self._belief = belief
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
         self._contrast = thirds_contrast
         return self._navigate_tick(row, thirds, heading_rad, policy, goal_score)
+
+    # -- states ---------------------------------------------------------------------------
+
+    def _enter(self, state: NavState, heading_rad: Optional[float] = None,
+               expected: Sequence[NodeId] = ()) -> None:
+        """Go to ``state`` (one of :data:`TRANSITIONS` from the current one) and run its entry
+        action; ``heading_rad`` starts a search's turn, ``expected`` is a re-localisation's plan
+        stretch."""
+        if state not in TRANSITIONS[self._state]:
+            raise RuntimeError(f"navigator: no transition from {self._state.name} to {state.name}")
+        self._state = state
+        if state is NavState.NAVIGATING:
+            self._search = None
+        elif state is NavState.SEARCHING:
+            self._search, self._search_ticks = TurnMeter(), 0
+            self._search.update(heading_rad)
+        elif state is NavState.RELOCALISING:
+            self._relocalisations += 1
+            self.chooser.reset()
+            self._supervisor = None
+            self._hint = None
+            self._local = self._local_columns()
+            self._localiser = self._new_localiser(expected, first_view=False)
+            self._search, self._search_ticks = TurnMeter(), 0
 
     # -- localisation ---------------------------------------------------------------------
 
@@ -327,8 +397,6 @@ class Navigator:
         belief = self._belief
         if belief is None:
             raise NavigationInputError("localiser.from_belief needs the belief over the map every tick (belief=)")
-        if self._search is None:
-            self._search, self._search_ticks = TurnMeter(), 0
         turned = self._search.update(heading_rad)
         self._search_ticks += 1
         node, level = belief.mode, self.config.belief.confidence
@@ -336,7 +404,6 @@ class Navigator:
         facing = belief.facing_deg is None or abs(belief.facing_deg) <= tolerance
         reachable = self._state is NavState.LOCALISING or node in self._goal_reachers
         if belief.confidence >= level and facing and reachable:
-            self._search = None
             where = "" if belief.facing_deg is None else ", facing along the route"
             return self._start(node, f"belief: node {node!r} holds {belief.confidence:.2f} of the mass "
                                      f"(>= {level:g}){where}", heading_rad)
@@ -365,17 +432,14 @@ class Navigator:
         self._plans += 1
         self._plan = plan.nodes
         self._supervisor = NodeSwitchSupervisor(plan.nodes, self.node_ids, self.config, self.filter)
-        self.voter.reset()
-        self._no_vote_ticks = 0
-        self._state = NavState.NAVIGATING
+        self.chooser.reset()
+        self._enter(NavState.NAVIGATING)
         return self._step(Action.NONE, reason=f"{reason}; planned "
                           f"{len(plan.nodes)} nodes (cost {plan.cost:g}) to goal {self.goal_node!r}")
 
     def _relocalise(self, why: str, decision: Optional[SupervisorDecision]) -> NavigationStep:
-        self._relocalisations += 1
-        self.voter.reset()
-        self._search = None
-        if self._relocalisations > self.config.max_relocalisations:
+        if self._relocalisations >= self.config.max_relocalisations:
+            self._relocalisations += 1          # the one too many: the final step reports it
             return self._fail(f"{why}; gave up after {self.config.max_relocalisations} "
                               "re-localisations", decision=decision)
         # Prefer the stretch of the plan the robot was driving: those nodes are accepted as the
@@ -385,11 +449,7 @@ class Navigator:
             sup = self.config.supervisor
             i = decision.path_index
             expected = self._plan[max(0, i - sup.window_behind): i + sup.window_ahead + 2]
-        self._supervisor = None
-        self._hint = None
-        self._local = self._local_columns()
-        self._localiser = self._new_localiser(expected, first_view=False)
-        self._state = NavState.RELOCALISING
+        self._enter(NavState.RELOCALISING, expected=expected)
         where = ("globally" if self._local is None else
                  f"near node {self._anchor!r} ({int(self._local.sum())} nodes within "
                  f"{self.config.localiser.relocalise_hops} arcs)")
@@ -440,75 +500,69 @@ class Navigator:
                        goal_score: Optional[float] = None) -> NavigationStep:
         decision = self._supervisor.tick(row, goal_score=goal_score)
         if decision.confirmed_node is not None:
-            self._set_anchor(decision.confirmed_node, heading_rad)
-            self._hint = None if heading_rad is None else (decision.confirmed_node, float(heading_rad))
-            self._remember(decision.confirmed_node)
-            self.voter.reset()
-            self._no_vote_ticks = 0
-            if self._state is NavState.SEARCHING:
-                self._state, self._search = NavState.NAVIGATING, None
+            self._confirmed(decision.confirmed_node, heading_rad)
         if decision.state is SupervisorState.GOAL_REACHED:
-            self._state = NavState.ARRIVED
+            self._enter(NavState.ARRIVED)
             self._final = self._step(Action.STOP, decision=decision, reason=decision.reason)
             return self._final
         if decision.state is SupervisorState.LOST:
             return self._relocalise(decision.reason, decision)
-        if policy is not None:
-            action = policy(decision.target_node)
-            if not isinstance(action, Action) or action in (Action.STOP, Action.SEARCH_ROTATE):
-                raise NavigationInputError(f"the action policy returned {action!r} for node "
-                                           f"{decision.target_node!r}; expected a driving Action")
-            return self._step(action, decision, reason=f"{decision.reason}; policy: {action.value}")
 
-        hinted = self._heading_hint(decision, heading_rad)
-        if hinted is not None:
-            return hinted
+        if self.chooser.uses_turn_hints and self._state in (NavState.NAVIGATING, NavState.TURNING):
+            turn = self._corner_turn(decision, heading_rad)
+            if turn is not None:
+                if self._state is NavState.NAVIGATING:
+                    self._enter(NavState.TURNING)
+                return self._step(turn[0], decision, reason=turn[1])
+            if self._state is NavState.TURNING:
+                self._enter(NavState.NAVIGATING)
 
-        scores = self._thirds_for(decision.target_node, thirds)
-        gate = None   # what must exceed t_limited_control (None: the scores themselves)
-        if self._contrast is not None:
-            gate = self._thirds_for(decision.target_node, self._contrast)
-        vote = self.voter.tick(scores, gate)
-        self._no_vote_ticks = self._no_vote_ticks + 1 if vote.kind is VoteKind.NO_VOTE else 0
+        target = decision.target_node
+        view = TargetView(target, lambda: self._thirds_for(target, thirds),
+                          lambda: None if self._contrast is None else self._thirds_for(target, self._contrast),
+                          policy)
+        try:
+            choice = self.chooser.choose(view)
+        except ChooserInputError as exc:
+            raise NavigationInputError(str(exc)) from None
 
         if self._state is NavState.SEARCHING:
-            if vote.vote is not None:
-                self._state, self._search = NavState.NAVIGATING, None
-                return self._step(vote.action, decision, scores, vote,
-                                  f"target {decision.target_node!r} back in view; {vote.reason}")
+            if choice.sees_target:
+                self._enter(NavState.NAVIGATING)
+                return self._step(choice.action, decision, choice.thirds, choice.vote,
+                                  f"target {target!r} back in view; {choice.reason}")
             turned = self._search.update(heading_rad)
             self._search_ticks += 1
             loc = self.config.localiser
             if turned >= loc.full_turn_rad or self._search_ticks >= loc.max_search_ticks:
-                return self._relocalise(f"target {decision.target_node!r} not seen by any third "
+                return self._relocalise(f"target {target!r} not seen by any third "
                                         f"during a full search turn", decision)
-            return self._step(Action.SEARCH_ROTATE, decision, scores, vote,
-                              f"searching for target {decision.target_node!r}: {vote.reason}",
-                              turned_rad=turned)
+            return self._step(Action.SEARCH_ROTATE, decision, choice.thirds, choice.vote,
+                              f"searching for target {target!r}: {choice.reason}", turned_rad=turned)
 
-        blind = self.config.blind_forward_ticks
-        if vote.kind is VoteKind.NO_VOTE and 0 < self._no_vote_ticks <= blind:
-            # A weak vote: between two nodes the walkthrough drove forward; a target that no third
-            # recognises yet (a poor view of it, or a view that changes a lot between the two
-            # nodes) is more likely ahead than behind, and turning away makes it worse.
-            # The best third's own action (left and right creep forward, see ActionSpeeds).
-            action = _WEAK_ACTION[scores.best()[0]]
-            return self._step(action, decision, scores, vote,
-                              f"{decision.reason}; {vote.reason}; {action.value} on a weak vote "
-                              f"({self._no_vote_ticks}/{blind})")
-        if self._no_vote_ticks >= blind + self.config.no_vote_patience_ticks:
-            self._state = NavState.SEARCHING
-            self._search, self._search_ticks = TurnMeter(), 0
-            self._search.update(heading_rad)
-            return self._step(Action.SEARCH_ROTATE, decision, scores, vote,
-                              f"target {decision.target_node!r} out of sight for "
-                              f"{self._no_vote_ticks} ticks; turning counter-clockwise to find it")
-        return self._step(vote.action, decision, scores, vote, f"{decision.reason}; {vote.reason}")
+        if choice.lost_sight:
+            self._enter(NavState.SEARCHING, heading_rad)
+            return self._step(Action.SEARCH_ROTATE, decision, choice.thirds, choice.vote,
+                              f"target {target!r} out of sight for {choice.unseen_ticks} ticks; "
+                              "turning counter-clockwise to find it")
+        return self._step(choice.action, decision, choice.thirds, choice.vote, f"{decision.reason}; {choice.reason}")
 
-    def _heading_hint(self, decision: SupervisorDecision, heading_rad: Optional[float]) -> Optional[NavigationStep]:
-        """The turn the map's odometry asks for at a corner (see the module docstring), or None."""
+    def _confirmed(self, node: NodeId, heading_rad: Optional[float]) -> None:
+        """The supervisor confirmed ``node`` by driving: the new anchor, a corner turn to check,
+        a new target for the chooser; a search or a corner turn is over."""
+        self._set_anchor(node, heading_rad)
+        self._hint = None if heading_rad is None else (node, float(heading_rad))
+        self._remember(node)
+        self.chooser.reset()
+        if self._state in (NavState.SEARCHING, NavState.TURNING):
+            self._enter(NavState.NAVIGATING)
+
+    def _corner_turn(self, decision: SupervisorDecision, heading_rad: Optional[float]) -> Optional[tuple]:
+        """``(action, reason)`` of the turn the map's odometry asks for at a corner (see TURNING
+        in the module docstring), or None when there is none to make now (a turn just completed
+        resets the chooser: it missed the ticks of the turn)."""
         if (self._headings is None or not self.config.heading_hints or self._hint is None or heading_rad is None
-                or self._state is not NavState.NAVIGATING or decision.target_node is None):
+                or decision.target_node is None):
             return None
         node, heading_then = self._hint
         target = decision.target_node
@@ -520,12 +574,11 @@ class Navigator:
         error = wrap_angle(heading_then + turn - float(heading_rad))
         if abs(error) <= math.radians(self.config.heading_hint_tolerance_deg):
             self._hint_done = (node, target)
-            self.voter.reset()
-            self._no_vote_ticks = 0
+            self.chooser.reset()
             return None
         action = Action.LEFT if error > 0 else Action.RIGHT
-        return self._step(action, decision, reason=f"{decision.reason}; the map turned {math.degrees(turn):+.0f} deg "
-                          f"from {node!r} to {target!r}: {action.value}, {math.degrees(error):+.0f} deg to go")
+        return action, (f"{decision.reason}; the map turned {math.degrees(turn):+.0f} deg from {node!r} to "
+                        f"{target!r}: {action.value}, {math.degrees(error):+.0f} deg to go")
 
     def _thirds_for(self, node: NodeId, thirds: ThirdsInput) -> ThirdScores:
         if thirds is None:
@@ -552,7 +605,7 @@ class Navigator:
 
     def _fail(self, reason: str, decision: Optional[SupervisorDecision] = None,
               turned_rad: float = 0.0) -> NavigationStep:
-        self._state = NavState.FAILED
+        self._enter(NavState.FAILED)
         self._final = self._step(Action.STOP, decision, reason=reason, turned_rad=turned_rad)
         return self._final
 

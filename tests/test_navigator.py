@@ -1,6 +1,7 @@
 """The composed navigator, closed-loop over a synthetic square loop map, and its failure modes."""
 
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Callable, List, Optional, Sequence
 
@@ -8,9 +9,10 @@ import numpy as np
 import pytest
 
 from controllers.actions import Action
+from controllers.choosers import PolicyChooser, VoterChooser
 from controllers.config import NavigationConfig, SupervisorConfig
 from controllers.localisation import GoalNotLocalisedError
-from controllers.navigator import NavigationInputError, NavigationStep, Navigator, NavState
+from controllers.navigator import TRANSITIONS, NavigationInputError, NavigationStep, Navigator, NavState
 from controllers.planner import UnknownNodeError
 from core.angles import wrap_angle
 from core.hal import Pose2D
@@ -346,7 +348,7 @@ def _expert_policy(places: SyntheticPlaces, pose_of, poses):
 def test_a_learned_policy_replaces_the_voter_while_navigating(loop):
     graph, poses = loop
     places = SyntheticPlaces(poses, seed=1)
-    nav = Navigator(graph, places.node_ids, 14, CONFIG)
+    nav = Navigator(graph, places.node_ids, 14, CONFIG, node_headings=_headings(poses), chooser=PolicyChooser())
     pose = offset(poses[0], forward_m=-0.2, left_m=0.1, yaw_rad=0.1)
     asked = []
     current = [pose]
@@ -373,16 +375,45 @@ def test_a_learned_policy_replaces_the_voter_while_navigating(loop):
     assert len(asked) == len(navigating) > 50
     assert [s.target_node for s in navigating] == asked
     assert all(s.vote is None and "policy" in s.reason for s in navigating)
+    # the policy steers its corners itself: no corner turn, no search
+    assert not {NavState.TURNING, NavState.SEARCHING} & {s.state for s in steps}
 
 
 def test_a_policy_returning_a_non_driving_action_is_refused(loop):
     graph, poses = loop
     places = SyntheticPlaces(poses, seed=1)
-    nav = Navigator(graph, places.node_ids, 14, CONFIG)
+    nav = Navigator(graph, places.node_ids, 14, CONFIG, chooser=PolicyChooser())
     pose = poses[0]
     with pytest.raises(NavigationInputError, match="action policy returned"):
         for _ in range(50):
             nav.tick(places.similarities(pose), heading_rad=pose.yaw_rad, policy=lambda node: Action.STOP)
+
+
+def test_a_policy_reaches_only_a_navigator_built_for_one(loop):
+    """A policy passed to the voter's navigator, or a policy navigator ticked without one, is bad
+    input, not silently ignored."""
+    graph, poses = loop
+    places = SyntheticPlaces(poses, seed=1)
+    pose = poses[0]
+    voter = Navigator(graph, places.node_ids, 14, CONFIG)
+    assert isinstance(voter.chooser, VoterChooser)
+    with pytest.raises(NavigationInputError, match="chooser=PolicyChooser"):
+        voter.tick(places.similarities(pose), heading_rad=0.0, policy=lambda node: Action.FORWARD)
+    learned = Navigator(graph, places.node_ids, 14, CONFIG, chooser=PolicyChooser())
+    with pytest.raises(NavigationInputError, match="pass this frame's policy"):
+        for _ in range(50):
+            learned.tick(places.similarities(pose), heading_rad=pose.yaw_rad)
+
+
+def test_the_docstrings_transition_table_is_the_one_the_navigator_keeps():
+    import controllers.navigator as module
+
+    rows = re.findall(r"^    ([A-Z]+)\s{2,}.+?\s{2,}([A-Z]+)\s*$", module.__doc__, flags=re.M)
+    table = {(NavState[a], NavState[b]) for a, b in rows if a != "from"}
+    kept = {(a, b) for a, allowed in TRANSITIONS.items() for b in allowed}
+    assert table == kept and len(table) >= 15
+    assert set(TRANSITIONS) == set(NavState)
+    assert not TRANSITIONS[NavState.ARRIVED] and not TRANSITIONS[NavState.FAILED]
 
 
 def _headings(poses, shift_rad=0.0):
@@ -402,8 +433,13 @@ def test_heading_hints_turn_at_corners_by_the_maps_odometry(loop):
     ep = drive_with(hints, _headings(poses))
     assert ep.last.state is NavState.ARRIVED and ep.poses[-1].distance_to(poses[14]) < 0.5
     hinted = [(s, p) for s, p in zip(ep.steps, ep.poses) if "the map turned" in s.reason]
-    # the corner nodes (5 -> 6, 11 -> 12: +45 deg each, both corners) asked for left turns
-    assert hinted and all(s.action is Action.LEFT for s, _ in hinted)
+    # the corner nodes (5 -> 6, 11 -> 12: +45 deg each, both corners) asked for left turns, each
+    # in the corner turn's own state, and the voter steered again after it
+    assert hinted and all(s.action is Action.LEFT and s.state is NavState.TURNING for s, _ in hinted)
+    turning = [s.state is NavState.TURNING for s in ep.steps]
+    assert turning == ["the map turned" in s.reason for s in ep.steps]
+    after = [ep.steps[i + 1] for i in range(len(ep.steps) - 1) if turning[i] and not turning[i + 1]]
+    assert after and all(s.state is NavState.NAVIGATING for s in after)
     assert {(s.current_node, s.target_node) for s, _ in hinted} <= {(4, 5), (5, 6), (10, 11), (11, 12)}
     # only differences count: another odometry frame gives the same drive
     shifted = drive_with(hints, _headings(poses, 2.5))

@@ -42,7 +42,7 @@ TURNED_DEG = 30.0
 CONFIDENT = 0.6
 
 _LOCALISING = ("localising", "relocalising")
-_ON_THE_WAY = ("navigating", "searching", "arrived")
+_ON_THE_WAY = ("navigating", "turning", "searching", "arrived")
 
 
 class StepLogError(ValueError):
@@ -231,7 +231,7 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
                 step=int(s["step"]), node=node, kind=kind, x_m=float(s["x_m"]), y_m=float(s["y_m"]),
                 distance_m=distance, node_x_m=x, node_y_m=y, heading_error_deg=error,
                 belief_node=mode, belief_wrong=mode_wrong))
-        if state == "relocalising" and previous is not None and previous["state"] in ("navigating", "searching"):
+        if state == "relocalising" and previous is not None and previous["state"] in _ON_THE_WAY:
             lost.append(LostEvent(step=int(s["step"]), x_m=float(s["x_m"]), y_m=float(s["y_m"]),
                                   current_node=previous["current_node"], target_node=previous["target_node"]))
         previous = s

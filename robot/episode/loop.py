@@ -36,6 +36,7 @@ import numpy as np
 
 from controllers.actions import Action
 from controllers.belief import BeliefSnapshot
+from controllers.choosers import PolicyChooser
 from controllers.config import NavigationConfig, Thresholds
 from controllers.navigator import NavigationStep, Navigator, NavState
 from controllers.voter import contrast_thirds
@@ -199,8 +200,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     if belief is None and config.localiser.from_belief != "off":
         config = replace(config, localiser=replace(config.localiser, from_belief="off"))
         belief_setup += "; the robot places itself by the thresholded match instead (localiser.from_belief off)"
-    navigator = Navigator(topomap.graph, node_ids, goal_node, config,
-                          node_headings=topomap.odom_headings)
+    navigator = Navigator(topomap.graph, node_ids, goal_node, config, node_headings=topomap.odom_headings,
+                          chooser=None if action_policy is None else PolicyChooser())
     heading = _Heading()
     tracker = None if belief is None else BeliefTracker(belief)
     snapshot: Optional[BeliefSnapshot] = None
