@@ -16,8 +16,9 @@ class Action(enum.Enum):
     cycles; ``FORWARD_LEFT`` / ``FORWARD_RIGHT`` from a conflict between Middle and a side;
     ``NONE`` means no action is taken this tick (a storing cycle without a held action, a
     conflict, no vote, a localisation being confirmed): the robot stands still.
-    ``SEARCH_ROTATE`` turns counter-clockwise in place to look for a match. ``STOP`` is final:
-    arrived or failed.
+    ``SEARCH_ROTATE`` turns counter-clockwise in place to look for a match. ``BACKWARD`` backs off
+    a wall the robot is pinned against (``navigation.recovery``). ``STOP`` is final: arrived or
+    failed.
     """
 
     LEFT = "left"
@@ -27,6 +28,7 @@ class Action(enum.Enum):
     FORWARD_RIGHT = "forward_right"
     NONE = "none"
     SEARCH_ROTATE = "search_rotate"
+    BACKWARD = "backward"
     STOP = "stop"
 
     @property

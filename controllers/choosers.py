@@ -135,7 +135,7 @@ class PolicyChooser:
             raise ChooserInputError("the navigator's chooser is a learned policy: pass this frame's policy "
                                     "every tick (policy=)")
         action = view.policy(view.target)
-        if not isinstance(action, Action) or action in (Action.STOP, Action.SEARCH_ROTATE):
+        if not isinstance(action, Action) or action in (Action.STOP, Action.SEARCH_ROTATE, Action.BACKWARD):
             raise ChooserInputError(f"the action policy returned {action!r} for node {view.target!r}; "
                                     "expected a driving Action")
         return Choice(action, True, False, f"policy: {action.value}")

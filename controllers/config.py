@@ -314,12 +314,18 @@ class ActionSpeeds:
     forward_left: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.2, 0.3))
     forward_right: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.2, -0.3))
     search_rotate: VelocityCommand = field(default_factory=lambda: VelocityCommand(0.0, 0.5))
+    #: Backing off a wall the robot is pinned against (``recovery``): straight back, slowly,
+    #: along the way it just came.
+    backward: VelocityCommand = field(default_factory=lambda: VelocityCommand(-0.1, 0.0))
 
     def __post_init__(self) -> None:
         # (name, required sign of v, required sign of w; 0 = not checked). Only the part
         # that defines the action is checked, so an in-place turn may creep forward.
         rules = (("forward", 1, 0), ("left", 0, 1), ("right", 0, -1),
                  ("forward_left", 1, 1), ("forward_right", 1, -1), ("search_rotate", 0, 1))
+        if not isinstance(self.backward, VelocityCommand) or not self.backward.v_mps < 0:
+            raise ValueError(f"backward must be a VelocityCommand(v_mps, w_radps) with v_mps < 0, got "
+                             f"{self.backward!r}")
         for name, v_sign, w_sign in rules:
             cmd = getattr(self, name)
             if not isinstance(cmd, VelocityCommand):
@@ -332,6 +338,31 @@ class ActionSpeeds:
             if w_sign and not cmd.w_radps * w_sign > 0:
                 side = "positive (counter-clockwise)" if w_sign > 0 else "negative (clockwise)"
                 raise ValueError(f"{name}.w_radps must be {side}, got {cmd.w_radps}")
+
+
+@dataclass(frozen=True)
+class RecoveryConfig:
+    """Not in the paper. Backing off a wall: a robot pressed against a wall turns its wheels but
+    not its body, and its wheel odometry counts on, so the gyro tells. Over the last
+    ``window_s`` of driving, when the commanded turns add up to at least ``min_turn_deg`` and the
+    gyro measured less than ``turn_ratio`` of that, the robot is stalled
+    (:class:`controllers.stall.StallMonitor`); it backs straight off (``speeds.backward``) for
+    ``backup_ticks``, then drives on. A camera that looks forward sees no obstacle; the robot
+    backs along the way it came, which was free a moment before. A robot stalled driving
+    straight ahead, with no turn commanded, is not told."""
+
+    enabled: bool = False
+    window_s: float = 2.0
+    min_turn_deg: float = 30.0
+    turn_ratio: float = 0.25
+    backup_ticks: int = 15
+
+    def __post_init__(self) -> None:
+        check_bool("enabled", self.enabled)
+        check_positive("window_s", self.window_s)
+        check_range("min_turn_deg", self.min_turn_deg, 0.0, 360.0, low_open=True, what="a number of degrees")
+        check_range("turn_ratio", self.turn_ratio, 0.0, 1.0, low_open=True, high_open=True, what="a fraction")
+        check_count("backup_ticks", self.backup_ticks, 1)
 
 
 @dataclass(frozen=True)
@@ -396,6 +427,8 @@ class NavigationConfig:
     #: the belief over the map; tracked and logged every step (it does not steer yet)
     belief: BeliefConfig = field(default_factory=BeliefConfig)
     speeds: ActionSpeeds = field(default_factory=ActionSpeeds)
+    #: backing off when pinned against a wall (off by default)
+    recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
     #: The two-cycle voter executes on every second tick. True: the executed action is held
     #: through the next (storing) tick, i.e. each decision lasts one two-tick vote period
     #: (a zero-order hold; smooth motion). False: the robot stands still on storing ticks,

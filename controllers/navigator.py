@@ -31,6 +31,9 @@ States (:class:`NavState`):
   the target by at least ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on
   the odometry heading) before the voter steers again: at corners the target is beside the
   field of view.
+* RECOVERING: stalled against a wall (``recovery``, off by default; the run loop's
+  :class:`controllers.stall.StallMonitor` tells, passed as ``stalled``): backs straight off for
+  ``recovery.backup_ticks``, then navigates on.
 * SEARCHING: the voter has not seen the target for its patience; turns counter-clockwise in
   place until a third sees it (back to NAVIGATING), or re-localises after a full turn.
 * RELOCALISING: the supervisor reported the robot lost; localisation as in LOCALISING, but
@@ -61,27 +64,35 @@ Transitions (:data:`TRANSITIONS`; the navigator refuses any other):
     LOCALISING    nothing matched in a full turn, or no plan           FAILED
     NAVIGATING    a node confirmed where the map turns                 TURNING
     NAVIGATING    the chooser lost sight of the target                 SEARCHING
+    NAVIGATING    stalled: turns commanded, the gyro saw none          RECOVERING
     NAVIGATING    the supervisor reports the robot lost                RELOCALISING
     NAVIGATING    the goal reached                                     ARRIVED
     NAVIGATING    lost once more than ``max_relocalisations``          FAILED
     TURNING       facing the map's heading (or no heading), a node     NAVIGATING
+    TURNING       stalled: turns commanded, the gyro saw none          RECOVERING
     TURNING       the supervisor reports the robot lost                RELOCALISING
     TURNING       the goal reached                                     ARRIVED
     TURNING       lost once more than ``max_relocalisations``          FAILED
     SEARCHING     a third sees the target, or a node confirmed         NAVIGATING
+    SEARCHING     stalled: turns commanded, the gyro saw none          RECOVERING
     SEARCHING     a full turn without it, or the supervisor's LOST     RELOCALISING
     SEARCHING     the goal reached                                     ARRIVED
     SEARCHING     lost once more than ``max_relocalisations``          FAILED
+    RECOVERING    backed off for ``backup_ticks``                      NAVIGATING
+    RECOVERING    the supervisor reports the robot lost                RELOCALISING
+    RECOVERING    the goal reached                                     ARRIVED
+    RECOVERING    lost once more than ``max_relocalisations``          FAILED
     RELOCALISING  a node matched (or the belief settled) and a plan    NAVIGATING
     RELOCALISING  nothing matched in a full turn, or no plan           FAILED
     ============  ===================================================  ============
 
 Entry actions (one place: ``Navigator._enter``): LOCALISING and RELOCALISING start a new
 localiser and a new turn of the search (RELOCALISING also counts the re-localisation, resets
-the chooser and drops the plan's supervisor and the corner turn); NAVIGATING ends the turn of
-a search; SEARCHING starts one; TURNING none; ARRIVED and FAILED keep their step as the final
-one (velocity zero). The chooser is reset whenever its target changes or it missed ticks: a
-new plan, a node confirmed, a corner turned.
+the chooser, drops the plan's supervisor and the corner turn); NAVIGATING ends the turn of a
+search; SEARCHING starts one; RECOVERING counts the recovery and starts the backing's count;
+TURNING none; ARRIVED and FAILED keep their step as the final one (velocity zero). The chooser
+is reset whenever its target changes or it missed ticks: a new plan, a node confirmed, a corner
+turned, a wall backed off.
 """
 
 from __future__ import annotations
@@ -131,6 +142,7 @@ class NavState(enum.Enum):
     SEARCHING = "searching"
     NAVIGATING = "navigating"
     TURNING = "turning"
+    RECOVERING = "recovering"
     RELOCALISING = "relocalising"
     ARRIVED = "arrived"
     FAILED = "failed"
@@ -169,10 +181,13 @@ _FINAL = frozenset({NavState.FAILED})
 #: state -> the states it may go to (the module docstring's table)
 TRANSITIONS: Mapping[NavState, frozenset] = {
     NavState.LOCALISING: frozenset({NavState.NAVIGATING}) | _FINAL,
-    NavState.NAVIGATING: frozenset({NavState.TURNING, NavState.SEARCHING, NavState.RELOCALISING,
+    NavState.NAVIGATING: frozenset({NavState.TURNING, NavState.SEARCHING, NavState.RECOVERING, NavState.RELOCALISING,
                                     NavState.ARRIVED}) | _FINAL,
-    NavState.TURNING: frozenset({NavState.NAVIGATING, NavState.RELOCALISING, NavState.ARRIVED}) | _FINAL,
-    NavState.SEARCHING: frozenset({NavState.NAVIGATING, NavState.RELOCALISING, NavState.ARRIVED}) | _FINAL,
+    NavState.TURNING: frozenset({NavState.NAVIGATING, NavState.RECOVERING, NavState.RELOCALISING,
+                                 NavState.ARRIVED}) | _FINAL,
+    NavState.SEARCHING: frozenset({NavState.NAVIGATING, NavState.RECOVERING, NavState.RELOCALISING,
+                                   NavState.ARRIVED}) | _FINAL,
+    NavState.RECOVERING: frozenset({NavState.NAVIGATING, NavState.RELOCALISING, NavState.ARRIVED}) | _FINAL,
     NavState.RELOCALISING: frozenset({NavState.NAVIGATING}) | _FINAL,
     NavState.ARRIVED: frozenset(),
     NavState.FAILED: frozenset(),
@@ -251,6 +266,8 @@ class Navigator:
         self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
         self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
         self._belief: Optional[BeliefSnapshot] = None   # this tick's belief over the map, if given
+        self._backing = 0                         # ticks backed off in this recovery
+        self._recoveries = 0
 
     @classmethod
     def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
@@ -290,7 +307,7 @@ class Navigator:
              heading_rad: Optional[float] = None,
              thirds_contrast: Optional[np.ndarray] = None, policy: PolicyInput = None,
              belief: Optional[BeliefSnapshot] = None,
-             goal_score: Optional[float] = None) -> NavigationStep:
+             goal_score: Optional[float] = None, stalled: bool = False) -> NavigationStep:
         """One control tick.
 
         ``similarities``: the current full view's cosine similarity to every node (column order
@@ -305,7 +322,9 @@ class Navigator:
         ``belief``: the belief over the map after this view (:meth:`controllers.belief.NodeBelief.snapshot`),
         which places the robot when ``localiser.from_belief`` asks for it. ``goal_score``: the
         view's cosine similarity to the goal image, when the goal is an image: the final approach
-        stops where the view matches it best (``supervisor.goal_image_arrival``).
+        stops where the view matches it best (``supervisor.goal_image_arrival``). ``stalled``: the
+        robot is pressed against a wall (:class:`controllers.stall.StallMonitor`); with
+        ``recovery.enabled`` it backs off.
         """
         try:
             row = similarity_row(similarities, len(self.node_ids), "similarities")
@@ -321,7 +340,7 @@ class Navigator:
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
         self._contrast = thirds_contrast
-        return self._navigate_tick(row, thirds, heading_rad, policy, goal_score)
+        return self._navigate_tick(row, thirds, heading_rad, policy, goal_score, stalled)
 
     # -- states ---------------------------------------------------------------------------
 
@@ -338,6 +357,9 @@ class Navigator:
         elif state is NavState.SEARCHING:
             self._search, self._search_ticks = TurnMeter(), 0
             self._search.update(heading_rad)
+        elif state is NavState.RECOVERING:
+            self._recoveries += 1
+            self._backing = 0
         elif state is NavState.RELOCALISING:
             self._relocalisations += 1
             self.chooser.reset()
@@ -497,7 +519,7 @@ class Navigator:
 
     def _navigate_tick(self, row: np.ndarray, thirds: ThirdsInput,
                        heading_rad: Optional[float], policy: PolicyInput = None,
-                       goal_score: Optional[float] = None) -> NavigationStep:
+                       goal_score: Optional[float] = None, stalled: bool = False) -> NavigationStep:
         decision = self._supervisor.tick(row, goal_score=goal_score)
         if decision.confirmed_node is not None:
             self._confirmed(decision.confirmed_node, heading_rad)
@@ -507,6 +529,14 @@ class Navigator:
             return self._final
         if decision.state is SupervisorState.LOST:
             return self._relocalise(decision.reason, decision)
+
+        if self._state is NavState.RECOVERING:
+            backing = self._back_off(decision)
+            if backing is not None:
+                return backing
+        elif stalled and self.config.recovery.enabled:
+            self._enter(NavState.RECOVERING)
+            return self._back_off(decision)
 
         if self.chooser.uses_turn_hints and self._state in (NavState.NAVIGATING, NavState.TURNING):
             turn = self._corner_turn(decision, heading_rad)
@@ -546,6 +576,18 @@ class Navigator:
                               f"target {target!r} out of sight for {choice.unseen_ticks} ticks; "
                               "turning counter-clockwise to find it")
         return self._step(choice.action, decision, choice.thirds, choice.vote, f"{decision.reason}; {choice.reason}")
+
+    def _back_off(self, decision: SupervisorDecision) -> Optional[NavigationStep]:
+        """RECOVERING: back off for ``recovery.backup_ticks``, then None: navigating again, with a
+        fresh chooser (it missed the ticks)."""
+        ticks = self.config.recovery.backup_ticks
+        if self._backing < ticks:
+            self._backing += 1
+            return self._step(Action.BACKWARD, decision, reason=f"{decision.reason}; stalled against a wall: "
+                              f"backing off ({self._backing}/{ticks}, recovery {self._recoveries})")
+        self.chooser.reset()
+        self._enter(NavState.NAVIGATING)
+        return None
 
     def _confirmed(self, node: NodeId, heading_rad: Optional[float]) -> None:
         """The supervisor confirmed ``node`` by driving: the new anchor, a corner turn to check,

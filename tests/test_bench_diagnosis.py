@@ -11,6 +11,7 @@ from robot.bench.diagnosis import (
     diagnose,
     map_node_poses,
     node_poses,
+    pinned_stretches,
     read_step_log,
     route_goal,
 )
@@ -54,6 +55,7 @@ def test_confirmations_wrong_places_and_lost_events():
     assert counts == {"episodes": 2, "confirmations": 7, "wrong": 2, "localisations": 3, "wrong_localisations": 1,
                       "belief_localisations": 0, "belief_wrong_localisations": 0, "belief_steps": 0,
                       "belief_right": 0, "belief_confident": 0, "belief_confident_right": 0,
+                      "pinned_episodes": 0, "pinned_steps": 0,
                       "median_distance_m": 0.2}
     assert d.belief_summary() is None                       # a log without the belief
 
@@ -73,6 +75,27 @@ def test_the_belief_in_the_log_is_judged_by_the_same_rule():
                                   "them; at the 2 (re-)localisations the navigator was wrong at 1, the belief at 0")
     counts = confirmation_counts([d])
     assert counts["belief_localisations"] == 2 and counts["belief_wrong_localisations"] == 0
+
+
+def _moving(i, action, x=0.0, yaw=0.0):
+    return {**_step(i, "navigating", 0, 1, x=x, yaw=yaw), "action": action}
+
+
+def test_a_robot_that_commands_motion_and_does_not_move_is_pinned():
+    stuck = [_moving(i, "right" if i % 2 else "forward_right", x=5.0 + 0.001 * (i % 3), yaw=88.0 + i % 2)
+             for i in range(30)]
+    assert [(p.step, p.steps, p.x_m) for p in pinned_stretches(stuck)] == [(0, 30, 5.0)]
+    free = [_moving(i, "forward", x=0.025 * i) for i in range(40)]          # 2.5 cm a step: moving
+    turning = [_moving(i, "search_rotate", yaw=3.0 * i) for i in range(40)]  # 3 deg a step: turning
+    assert pinned_stretches(free) == () and pinned_stretches(turning) == ()
+    # standing still on purpose is not pinned, and it ends a stretch
+    held = stuck[:15] + [{**s, "action": "none"} for s in stuck[15:20]] + stuck[20:]
+    assert pinned_stretches(held) == ()
+    d = diagnose(STEPS + [{**s, "step": 11 + s["step"]} for s in stuck], POSES)
+    assert d.pinned_steps == 30 and "pinned for 30 steps in 1 stretch(es), the longest 30 from step 11" in d.summary()
+    counts = confirmation_counts([d, diagnose(STEPS, POSES)])
+    assert (counts["pinned_episodes"], counts["pinned_steps"]) == (1, 30)
+    assert diagnose(STEPS, POSES).pinned == ()
 
 
 def test_a_goal_image_placed_at_a_far_node_is_named_first():

@@ -1,5 +1,6 @@
 """The composed navigator, closed-loop over a synthetic square loop map, and its failure modes."""
 
+import itertools
 import math
 import re
 from dataclasses import dataclass, field
@@ -489,6 +490,41 @@ def _lost_then_relocalise(config: NavigationConfig, during: np.ndarray, max_tick
         if nav.state is not NavState.RELOCALISING:
             break
     return steps
+
+
+def _stalled_run(recovery, stalled_from: int = 8, ticks: int = 40):
+    """Chain 0 -> ... -> 9, the view at node 0, the middle third voting: the robot drives forward
+    and, from tick ``stalled_from`` on, the run loop reports it stalled whenever it drives."""
+    from dataclasses import replace as _replace
+
+    graph, _ = chain(10)
+    nav = Navigator(graph, list(range(10)), 9, _replace(CONFIG, recovery=recovery))
+    view = np.full(10, 0.1)
+    view[0] = 0.9
+    return [nav.tick(view, thirds=lambda node: (0.2, 0.9, 0.2), heading_rad=0.0, stalled=k >= stalled_from)
+            for k in range(ticks)]
+
+
+def test_a_robot_stalled_against_a_wall_backs_off_and_drives_on():
+    from controllers.config import RecoveryConfig
+
+    recovery = RecoveryConfig(enabled=True, backup_ticks=5)
+    steps = _stalled_run(recovery)
+    states = [s.state for s in steps]
+    first = states.index(NavState.RECOVERING)
+    assert first == 8 and steps[first - 1].state is NavState.NAVIGATING
+    backing = list(itertools.takewhile(lambda s: s.state is NavState.RECOVERING, steps[first:]))
+    assert len(backing) == 5 and all(s.action is Action.BACKWARD and s.velocity.v_mps < 0 for s in backing)
+    assert "stalled against a wall: backing off (1/5, recovery 1)" in backing[0].reason
+    after = steps[first + 5]
+    assert after.state is NavState.NAVIGATING and after.action is not Action.BACKWARD
+    assert steps[first + 6].state is NavState.RECOVERING          # still stalled: backs off again
+    assert "recovery 2" in steps[first + 6].reason
+    # off (the default): the report changes nothing
+    assert NavState.RECOVERING not in {s.state for s in _stalled_run(RecoveryConfig())}
+    assert [s.action for s in _stalled_run(RecoveryConfig())] == [s.action for s in _stalled_run(recovery, 99)]
+    with pytest.raises(ValueError, match="turn_ratio"):
+        RecoveryConfig(turn_ratio=1.5)
 
 
 def test_relocalisation_prefers_the_nodes_near_the_last_confirmed_one():

@@ -14,6 +14,11 @@ pose. Together they tell, without looking at pictures, whether each node the nav
   an error (the median confirmation in run 4 was 0.5 m from its node, the 95th percentile 3.1 m);
   of run 4's confirmations within 1 m, 99 % faced within 29 deg of the node's heading;
 * a **lost** event is a step where navigating turned into re-localising;
+* a **pinned** stretch is at least ``PINNED_STEPS`` (20) consecutive steps that commanded motion
+  while the robot's true pose stayed within ``PINNED_M`` (3 cm) and ``PINNED_DEG`` (5 deg) of
+  where the stretch began: pressed against a wall or a shelf, its wheels blocked, whatever the
+  navigator believed (a free robot covers 16 cm or turns 57 deg in 20 steps of its slowest
+  moving action);
 * where the log has the belief over the map (``belief_top``), the belief's mode is judged by the
   same rule at every step and at every confirmation: how often the belief would have placed the
   robot right where the navigator's single look did or did not.
@@ -38,11 +43,17 @@ from typing import Iterable, Mapping, Optional, Sequence
 FAR_M = 3.0
 NEAR_M = 1.0
 TURNED_DEG = 30.0
+#: A pinned stretch: this many steps commanding motion, the true pose within PINNED_M and PINNED_DEG.
+PINNED_STEPS = 20
+PINNED_M = 0.03
+PINNED_DEG = 5.0
+#: the step log's actions that command no motion
+_STILL = ("none", "stop")
 #: the belief counts as confident from this mass near its mode (``navigation.belief.confidence``)
 CONFIDENT = 0.6
 
 _LOCALISING = ("localising", "relocalising")
-_ON_THE_WAY = ("navigating", "turning", "searching", "arrived")
+_ON_THE_WAY = ("navigating", "turning", "recovering", "searching", "arrived")
 
 
 class StepLogError(ValueError):
@@ -95,6 +106,14 @@ class LostEvent:
 
 
 @dataclass(frozen=True)
+class PinnedStretch:
+    step: int                  # its first step
+    steps: int                 # how many steps it lasted
+    x_m: float                 # where the robot stood (true position)
+    y_m: float
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     confirmations: tuple[Confirmation, ...]
     lost: tuple[LostEvent, ...]
@@ -104,6 +123,12 @@ class Diagnosis:
     belief_right: int = 0                       # ... whose mode was at the right place
     belief_confident: int = 0                   # ... whose confidence reached CONFIDENT
     belief_confident_right: int = 0
+    pinned: tuple[PinnedStretch, ...] = ()
+
+    @property
+    def pinned_steps(self) -> int:
+        """Steps spent pinned (:class:`PinnedStretch`), over the episode."""
+        return sum(p.steps for p in self.pinned)
 
     @property
     def wrong(self) -> tuple[Confirmation, ...]:
@@ -139,6 +164,10 @@ class Diagnosis:
             e = self.lost[0]
             parts.append(f"first lost: step {e.step} at ({e.x_m:.1f}, {e.y_m:.1f}), "
                          f"{e.current_node} -> {e.target_node}")
+        if self.pinned:
+            p = max(self.pinned, key=lambda q: q.steps)
+            parts.append(f"pinned for {self.pinned_steps} steps in {len(self.pinned)} stretch(es), the longest "
+                         f"{p.steps} from step {p.step} at ({p.x_m:.1f}, {p.y_m:.1f})")
         return "; ".join(parts)
 
 
@@ -195,6 +224,33 @@ def route_goal(spec, route: str, goal_node) -> Optional[tuple]:
     return goal_node, (float(found.goal[0]), float(found.goal[1]))
 
 
+def pinned_stretches(steps: Sequence[Mapping]) -> tuple[PinnedStretch, ...]:
+    """The pinned stretches of an episode's steps (see the module docstring)."""
+    found = []
+    start = None                 # the first step of the current stretch of motion in place
+
+    def close(end: int) -> None:
+        if start is not None and end - start >= PINNED_STEPS:
+            first = steps[start]
+            found.append(PinnedStretch(int(first["step"]), end - start, float(first["x_m"]), float(first["y_m"])))
+
+    for i, s in enumerate(steps):
+        if s.get("action", "none") in _STILL:
+            close(i)
+            start = None
+            continue
+        if start is not None:
+            a = steps[start]
+            turned = abs((float(s["yaw_deg"]) - float(a["yaw_deg"]) + 180.0) % 360.0 - 180.0)
+            if math.hypot(float(s["x_m"]) - float(a["x_m"]), float(s["y_m"]) - float(a["y_m"])) <= PINNED_M \
+                    and turned <= PINNED_DEG:
+                continue
+            close(i)
+        start = i
+    close(len(steps))
+    return tuple(found)
+
+
 def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = None) -> Diagnosis:
     """The confirmations and lost events of one episode's steps (see the module docstring).
 
@@ -206,6 +262,7 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
     lost: list[LostEvent] = []
     previous: Optional[Mapping] = None
     counts = {"steps": 0, "right": 0, "confident": 0, "confident_right": 0}
+    steps = list(steps)
     for s in steps:
         state, node = s["state"], s["current_node"]
         kind = None
@@ -236,7 +293,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
                                   current_node=previous["current_node"], target_node=previous["target_node"]))
         previous = s
     beliefs = {"belief_steps": counts["steps"], "belief_right": counts["right"],
-               "belief_confident": counts["confident"], "belief_confident_right": counts["confident_right"]}
+               "belief_confident": counts["confident"], "belief_confident_right": counts["confident_right"],
+               "pinned": pinned_stretches(steps)}
     if goal is None:
         return Diagnosis(tuple(confirmations), tuple(lost), **beliefs)
     node, (gx, gy) = goal
@@ -247,7 +305,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
 
 
 def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
-    """Totals over episodes: confirmations and wrong ones, and the same for (re-)localisations."""
+    """Totals over episodes: confirmations and wrong ones, the same for (re-)localisations, and
+    the episodes and steps pinned."""
     every = [c for d in diagnoses for c in d.confirmations]
     localised = [c for c in every if c.kind == "localised"]
     judged = [c for c in localised if c.belief_wrong is not None]
@@ -257,4 +316,6 @@ def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
             "belief_steps": sum(d.belief_steps for d in diagnoses), "belief_right": sum(d.belief_right for d in diagnoses),
             "belief_confident": sum(d.belief_confident for d in diagnoses),
             "belief_confident_right": sum(d.belief_confident_right for d in diagnoses),
+            "pinned_episodes": sum(bool(d.pinned) for d in diagnoses),
+            "pinned_steps": sum(d.pinned_steps for d in diagnoses),
             "median_distance_m": None if not every else round(statistics.median(c.distance_m for c in every), 3)}

@@ -248,15 +248,16 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
             lines.append(f"| {level} | {s['map']['nodes']} | {s['map']['mean_arc_length_m']} | "
                          f"{s['success_rate']:.2f} | {s['spl']:.2f} | {s['mean_relocalisations']:.2f} |")
     if diagnoses:
-        from robot.bench.diagnosis import CONFIDENT, FAR_M, NEAR_M, TURNED_DEG, confirmation_counts
+        from robot.bench.diagnosis import CONFIDENT, FAR_M, NEAR_M, PINNED_STEPS, TURNED_DEG, confirmation_counts
 
         lines += ["", "## Place recognition in the loop (step logs)", "",
                   "A confirmation is a node the navigator took as where the robot stood (localised at, or reached "
                   f"by driving); it is wrong when the robot stood more than {FAR_M:g} m from the node's true pose, or "
                   f"more than {NEAR_M:g} m from it facing more than {TURNED_DEG:g} deg away from the node's heading "
-                  "(`robot/bench/diagnosis.py`).", "",
+                  "(`robot/bench/diagnosis.py`). Pinned: episodes, and steps in them, where the robot commanded "
+                  f"motion for {PINNED_STEPS} steps or more without moving (against a wall).", "",
                   "| route | method | episodes | confirmations | wrong | (re-)localisations | wrong | "
-                  "median distance to the node (m) |", "|---|---|---|---|---|---|---|---|"]
+                  "median distance to the node (m) | pinned: episodes / steps |", "|---|---|---|---|---|---|---|---|---|"]
         groups: dict = {}
         for e in episodes:
             if id(e) in diagnoses:
@@ -264,7 +265,8 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
         for (label, method), found in groups.items():
             c = confirmation_counts(found)
             lines.append(f"| {label} | {method} | {c['episodes']} | {c['confirmations']} | {c['wrong']} | "
-                         f"{c['localisations']} | {c['wrong_localisations']} | {c['median_distance_m']} |")
+                         f"{c['localisations']} | {c['wrong_localisations']} | {c['median_distance_m']} | "
+                         f"{c['pinned_episodes']} / {c['pinned_steps']} |")
         counted = {key: confirmation_counts(found) for key, found in groups.items()}
         if any(c["belief_steps"] for c in counted.values()):
             lines += ["", "The belief over the map (`controllers/belief.py`), judged by the same rule: its mode at "

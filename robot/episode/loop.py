@@ -39,6 +39,7 @@ from controllers.belief import BeliefSnapshot
 from controllers.choosers import PolicyChooser
 from controllers.config import NavigationConfig, Thresholds
 from controllers.navigator import NavigationStep, Navigator, NavState
+from controllers.stall import StallMonitor
 from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
 from descriptors.base import Descriptor
@@ -157,6 +158,27 @@ class _Heading:
         return self._yaw
 
 
+#: the states in which the robot drives its plan (a stall there is backed off)
+_DRIVING = (NavState.NAVIGATING, NavState.TURNING, NavState.SEARCHING)
+
+
+class _Stall:
+    """The stall monitor fed from the frames: the yaw rate applied over each period against the
+    gyro's (:class:`controllers.stall.StallMonitor`), watched only while the robot drives."""
+
+    def __init__(self, config: NavigationConfig) -> None:
+        self.monitor = StallMonitor(config.recovery)
+        self._w: Optional[float] = None       # the yaw rate applied since the last frame (None: not driving)
+
+    def update(self, frame: SensorFrame) -> bool:
+        if self._w is None:
+            self.monitor.reset()
+        return self.monitor.update(frame.stamp_s, self._w or 0.0, frame.imu_yaw_rate_radps)
+
+    def applied(self, command: VelocityCommand, driving: bool) -> None:
+        self._w = float(command.w_radps) if driving else None
+
+
 def _ms(t0: float) -> float:
     return (time.perf_counter() - t0) * 1000.0
 
@@ -203,6 +225,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     navigator = Navigator(topomap.graph, node_ids, goal_node, config, node_headings=topomap.odom_headings,
                           chooser=None if action_policy is None else PolicyChooser())
     heading = _Heading()
+    stall = _Stall(config) if config.recovery.enabled else None
     tracker = None if belief is None else BeliefTracker(belief)
     snapshot: Optional[BeliefSnapshot] = None
     timings: list[StepTiming] = []
@@ -239,8 +262,10 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             step = navigator.tick(similarities, thirds=thirds,
                                   thirds_contrast=contrast_thirds(thirds) if thirds_contrast else None,
                                   heading_rad=heading.update(frame), policy=policy, belief=snapshot,
-                                  goal_score=goal_score)
+                                  goal_score=goal_score, stalled=stall.update(frame) if stall else False)
             applied = base.apply(step.velocity)
+            if stall is not None:
+                stall.applied(applied, driving=step.state in _DRIVING)
             decide_ms = _ms(t0)
             if step.planned_path and (not plans or plans[-1] != _plain(step.planned_path)):
                 plans.append(_plain(step.planned_path))
