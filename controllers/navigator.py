@@ -177,6 +177,9 @@ class NavigationStep:
         return self.state in (NavState.ARRIVED, NavState.FAILED)
 
 
+#: the states in which the robot drives its plan (where a stall is backed off)
+DRIVING_STATES = frozenset({NavState.NAVIGATING, NavState.TURNING, NavState.SEARCHING})
+
 _FINAL = frozenset({NavState.FAILED})
 #: state -> the states it may go to (the module docstring's table)
 TRANSITIONS: Mapping[NavState, frozenset] = {
@@ -534,7 +537,7 @@ class Navigator:
             backing = self._back_off(decision)
             if backing is not None:
                 return backing
-        elif stalled and self.config.recovery.enabled:
+        elif stalled and self.config.recovery.enabled and self._state in DRIVING_STATES:
             self._enter(NavState.RECOVERING)
             return self._back_off(decision)
 

@@ -119,14 +119,16 @@ def materialise(kind: str, key: str, data: bytes, root: Optional[Path] = None) -
     return target
 
 
+def _path_fields(trial: Trial, names: Sequence[str] = INPUT_FIELDS) -> dict[str, str]:
+    """``trial``'s fields among ``names`` that name a file or folder (a world given by name is in
+    the package)."""
+    return {name: value for name in names
+            if (value := getattr(trial, name)) and (name != "world" or Path(value).is_file())}
+
+
 def _input_paths(trial: Trial) -> list[str]:
-    """The files and folders ``trial`` reads (a world given by name is in the package)."""
-    out = []
-    for name in INPUT_FIELDS:
-        value = getattr(trial, name)
-        if value and (name != "world" or Path(value).is_file()):
-            out.append(value)
-    return out
+    """The files and folders ``trial`` reads."""
+    return list(_path_fields(trial).values())
 
 
 # -- the task -------------------------------------------------------------------------------------
@@ -159,8 +161,8 @@ def _episode_task(trial_fields: dict, config: Optional[tuple], inputs: dict, ste
     outputs: dict[str, str] = {}          # where the episode writes here -> where the driver wants it
     scratch = None
     if not shared:
-        trial = replace(trial, **{name: local(inputs[getattr(trial, name)]) for name in INPUT_FIELDS
-                                  if getattr(trial, name) in inputs})
+        trial = replace(trial, **{name: local(inputs[value]) for name, value in _path_fields(trial).items()
+                                  if value in inputs})
         scratch = Path(tempfile.mkdtemp(prefix="limo-toponav-episode-"))
         here_trace = here_log = None
         if trial.trace_png:
@@ -276,9 +278,5 @@ def _outputs_of(job: Job) -> list[str]:
 
 def _absolute(trial: Trial) -> Trial:
     """The trial with every path it reads or writes absolute (workers may run in another folder)."""
-    fields = {}
-    for name in (*INPUT_FIELDS, "trace_png"):
-        value = getattr(trial, name)
-        if value and (name != "world" or Path(value).is_file()):
-            fields[name] = str(Path(value).resolve())
-    return replace(trial, **fields)
+    fields = _path_fields(trial, (*INPUT_FIELDS, "trace_png"))
+    return replace(trial, **{name: str(Path(value).resolve()) for name, value in fields.items()})

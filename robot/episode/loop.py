@@ -38,7 +38,7 @@ from controllers.actions import Action
 from controllers.belief import BeliefSnapshot
 from controllers.choosers import PolicyChooser
 from controllers.config import NavigationConfig, Thresholds
-from controllers.navigator import NavigationStep, Navigator, NavState
+from controllers.navigator import DRIVING_STATES, NavigationStep, Navigator, NavState
 from controllers.stall import StallMonitor
 from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
@@ -158,10 +158,6 @@ class _Heading:
         return self._yaw
 
 
-#: the states in which the robot drives its plan (a stall there is backed off)
-_DRIVING = (NavState.NAVIGATING, NavState.TURNING, NavState.SEARCHING)
-
-
 class _Stall:
     """The stall monitor fed from the frames: the yaw rate applied over each period against the
     gyro's (:class:`controllers.stall.StallMonitor`), watched only while the robot drives."""
@@ -265,7 +261,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
                                   goal_score=goal_score, stalled=stall.update(frame) if stall else False)
             applied = base.apply(step.velocity)
             if stall is not None:
-                stall.applied(applied, driving=step.state in _DRIVING)
+                stall.applied(applied, driving=step.state in DRIVING_STATES)
             decide_ms = _ms(t0)
             if step.planned_path and (not plans or plans[-1] != _plain(step.planned_path)):
                 plans.append(_plain(step.planned_path))
