@@ -7,6 +7,7 @@ import pytest
 
 from robot.bench.diagnosis import (
     StepLogError,
+    collision_onsets,
     confirmation_counts,
     diagnose,
     map_node_poses,
@@ -148,3 +149,17 @@ def test_route_goal_reads_the_true_goal_of_an_evaluation_route_from_the_world_sp
     assert route_goal(spec, "no-such-route", 12) is None
     assert route_goal(spec, "easy", None) is None        # the episode placed no goal image
     assert route_goal(None, "easy", 12) is None           # world spec not found
+
+
+def test_collisions_are_told_by_what_the_robot_was_commanded_then():
+    actions = ["forward"] * 4 + ["backward"] * 3 + ["search_rotate"] * 6
+    counts = [0, 0, 1, 1, 1, 1, 1, 1, 3, 3, 4, 4, 4]       # +1 driving, +2 and +1 turning in place
+    steps = [{**_moving(i, a, x=0.02 * i), "collisions": c} for i, (a, c) in enumerate(zip(actions, counts))]
+    onsets = collision_onsets(steps)
+    assert [(c.step, c.count, c.doing) for c in onsets] == [(2, 1, "driving"), (8, 2, "turning in place"),
+                                                           (10, 1, "turning in place")]
+    d = diagnose(STEPS + [{**s, "step": 11 + s["step"]} for s in steps], POSES)
+    assert d.collisions_by_doing() == {"driving": 1, "turning in place": 3}
+    assert d.summary().endswith("4 collisions: 3 turning in place, 1 driving")
+    # a log without the count (written before it was logged, or not by the simulator) has none
+    assert collision_onsets(STEPS) == () and "collisions" not in diagnose(STEPS, POSES).summary()

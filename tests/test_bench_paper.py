@@ -249,6 +249,9 @@ def test_replay_reproduces_an_episode_with_a_step_log(serial_run, tmp_path, caps
     assert [e["step"] for e in lines] == list(range(len(lines)))
     assert lines[0]["state"] in ("localising", "navigating")
     assert lines[-1]["state"] in ("arrived", "failed")
+    # the simulator's collision count, never falling, ends at the episode's collisions
+    counts = [e["collisions"] for e in lines]
+    assert counts == sorted(counts) and counts[-1] == recorded["metrics"]["collisions"]
     first = recorded["trajectory"][1] if len(recorded["trajectory"]) > 1 else recorded["trajectory"][0]
     assert math.dist((lines[min(len(lines) - 1, 9)]["x_m"], lines[min(len(lines) - 1, 9)]["y_m"]), first) < 1e-6
     assert not list(tmp_path.glob(".steps.jsonl.tmp-*"))

@@ -19,6 +19,9 @@ pose. Together they tell, without looking at pictures, whether each node the nav
   where the stretch began: pressed against a wall or a shelf, its wheels blocked, whatever the
   navigator believed (a free robot covers 16 cm or turns 57 deg in 20 steps of its slowest
   moving action);
+* a **collision** is a step at which the simulator's count of new contacts with walls and props
+  (the log's ``collisions``, since the episode began) went up; each is told by what the robot
+  was commanded then: turning in place (a search), driving, backing off or standing;
 * where the log has the belief over the map (``belief_top``), the belief's mode is judged by the
   same rule at every step and at every confirmation: how often the belief would have placed the
   robot right where the navigator's single look did or did not.
@@ -114,6 +117,24 @@ class PinnedStretch:
 
 
 @dataclass(frozen=True)
+class CollisionOnset:
+    step: int
+    count: int                 # new contacts at this step
+    state: str
+    action: str
+    x_m: float                 # the robot's true position
+    y_m: float
+
+    @property
+    def doing(self) -> str:
+        """What the robot was commanded: "turning in place", "backing off", "standing" or "driving"."""
+        return _DOING.get(self.action, "driving")
+
+
+_DOING = {"search_rotate": "turning in place", "backward": "backing off", "none": "standing", "stop": "standing"}
+
+
+@dataclass(frozen=True)
 class Diagnosis:
     confirmations: tuple[Confirmation, ...]
     lost: tuple[LostEvent, ...]
@@ -124,6 +145,14 @@ class Diagnosis:
     belief_confident: int = 0                   # ... whose confidence reached CONFIDENT
     belief_confident_right: int = 0
     pinned: tuple[PinnedStretch, ...] = ()
+    collisions: tuple[CollisionOnset, ...] = ()
+
+    def collisions_by_doing(self) -> dict:
+        """``{"turning in place": 7, "driving": 2}``: the collisions by what the robot was doing."""
+        counts: dict = {}
+        for c in self.collisions:
+            counts[c.doing] = counts.get(c.doing, 0) + c.count
+        return counts
 
     @property
     def pinned_steps(self) -> int:
@@ -168,6 +197,9 @@ class Diagnosis:
             p = max(self.pinned, key=lambda q: q.steps)
             parts.append(f"pinned for {self.pinned_steps} steps in {len(self.pinned)} stretch(es), the longest "
                          f"{p.steps} from step {p.step} at ({p.x_m:.1f}, {p.y_m:.1f})")
+        if self.collisions:
+            by = sorted(self.collisions_by_doing().items(), key=lambda kv: -kv[1])
+            parts.append(f"{sum(n for _, n in by)} collisions: " + ", ".join(f"{n} {doing}" for doing, n in by))
         return "; ".join(parts)
 
 
@@ -251,6 +283,20 @@ def pinned_stretches(steps: Sequence[Mapping]) -> tuple[PinnedStretch, ...]:
     return tuple(found)
 
 
+def collision_onsets(steps: Sequence[Mapping]) -> tuple[CollisionOnset, ...]:
+    """The steps at which the log's collision count went up (none where the log has no count)."""
+    found, before = [], 0
+    for s in steps:
+        count = s.get("collisions")
+        if count is None:
+            continue
+        if count > before:
+            found.append(CollisionOnset(int(s["step"]), int(count - before), str(s["state"]),
+                                        str(s.get("action", "none")), float(s["x_m"]), float(s["y_m"])))
+        before = count
+    return tuple(found)
+
+
 def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = None) -> Diagnosis:
     """The confirmations and lost events of one episode's steps (see the module docstring).
 
@@ -294,7 +340,7 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
         previous = s
     beliefs = {"belief_steps": counts["steps"], "belief_right": counts["right"],
                "belief_confident": counts["confident"], "belief_confident_right": counts["confident_right"],
-               "pinned": pinned_stretches(steps)}
+               "pinned": pinned_stretches(steps), "collisions": collision_onsets(steps)}
     if goal is None:
         return Diagnosis(tuple(confirmations), tuple(lost), **beliefs)
     node, (gx, gy) = goal

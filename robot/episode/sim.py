@@ -130,6 +130,7 @@ class _TruthRecorder:
                  log: Optional[StepLog] = None, viewer: Optional[NavigationLogger] = None):
         self.truth = base.ground_truth
         self.poses: list[Pose2D] = [self.truth.true_pose()]
+        self._collisions_before = self.truth.collision_count()
         self.video = video
         self.bar = bar
         self.log = log
@@ -139,7 +140,7 @@ class _TruthRecorder:
         pose = self.truth.true_pose()
         self.poses.append(pose)
         if self.log is not None:
-            self.log.write(record, pose)
+            self.log.write(record, pose, self.truth.collision_count() - self._collisions_before)
         if self.video is not None:
             self.video.add(record.frame.rgb, record.step, record.frame.stamp_s)
         if self.viewer is not None:

@@ -24,8 +24,9 @@ from core.hal import Pose2D
 from robot.episode.loop import StepRecord
 
 
-def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray) -> dict:
-    """One line of the step log: the true pose after the step, what the navigator decided, and
+def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray, collisions: int | None = None) -> dict:
+    """One line of the step log: the true pose after the step, the simulator's collision count
+    since the episode began (None where no simulator counts), what the navigator decided, and
     the node the raw view matched best (``node_ids``: the similarity row's order)."""
     s = record.step
     sims = record.similarities
@@ -34,7 +35,7 @@ def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray) -> di
     def r3(v):
         return None if v is None else round(float(v), 3)
     return {"step": record.index, "x_m": round(pose.x_m, 3), "y_m": round(pose.y_m, 3),
-            "yaw_deg": round(math.degrees(pose.yaw_rad), 1), "state": s.state.value, "action": s.action.value,
+            "yaw_deg": round(math.degrees(pose.yaw_rad), 1), "collisions": collisions, "state": s.state.value, "action": s.action.value,
             "current_node": s.current_node, "target_node": s.target_node,
             "current_score": r3(s.current_score), "target_score": r3(s.target_score),
             "thirds": None if s.thirds is None else [r3(s.thirds.left), r3(s.thirds.middle), r3(s.thirds.right)],
@@ -99,8 +100,8 @@ class StepLog:
     def path(self) -> Path:
         return self._file.path
 
-    def write(self, record: StepRecord, pose: Pose2D) -> None:
-        self._file.write(json.dumps(step_log_entry(record, pose, self.node_ids)) + "\n")
+    def write(self, record: StepRecord, pose: Pose2D, collisions: int | None = None) -> None:
+        self._file.write(json.dumps(step_log_entry(record, pose, self.node_ids, collisions)) + "\n")
         self._rows.append(np.asarray(record.similarities, dtype=np.float16))
         o = record.frame.odometry
         self._odometry.append((math.nan,) * 3 if o is None else (o.x_m, o.y_m, o.yaw_rad))
