@@ -120,6 +120,10 @@ class VoterChooser:
         return Choice(vote.action, seen, lost, vote.reason, scores, vote, self._unseen)
 
 
+#: actions a learned policy may not return: the navigator's own (search, backing off, retracing) and STOP
+_NOT_DRIVING = (Action.STOP, Action.SEARCH_ROTATE, Action.BACKWARD, Action.RETRACE)
+
+
 class PolicyChooser:
     """A learned policy picks the action: ``view.policy(target) -> Action`` (the run loop passes
     this frame's policy every tick). It never loses sight of its target."""
@@ -135,7 +139,7 @@ class PolicyChooser:
             raise ChooserInputError("the navigator's chooser is a learned policy: pass this frame's policy "
                                     "every tick (policy=)")
         action = view.policy(view.target)
-        if not isinstance(action, Action) or action in (Action.STOP, Action.SEARCH_ROTATE, Action.BACKWARD):
+        if not isinstance(action, Action) or action in _NOT_DRIVING:
             raise ChooserInputError(f"the action policy returned {action!r} for node {view.target!r}; "
                                     "expected a driving Action")
         return Choice(action, True, False, f"policy: {action.value}")

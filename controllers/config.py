@@ -366,6 +366,52 @@ class RecoveryConfig:
 
 
 @dataclass(frozen=True)
+class TurnRoomConfig:
+    """Not in the paper. Room to turn in place: before the turn of a search or a re-localisation
+    the robot drives the way it just came backwards, for at most ``retrace_ticks`` (its last
+    commands negated, newest first, back to its last turn in place), so that it turns where it
+    was a moment before. Why: a robot that lost its target has usually driven up to a wall, and
+    the Limo's corners sweep 0.19 m around its centre as it turns; the way just driven was free,
+    and a camera that looks forward cannot see any other free space."""
+
+    enabled: bool = True
+    retrace_ticks: int = 20
+
+    def __post_init__(self) -> None:
+        check_bool("enabled", self.enabled)
+        check_count("retrace_ticks", self.retrace_ticks, 1)
+
+
+@dataclass(frozen=True)
+class HeadingGuardConfig:
+    """Not in the paper. Keeping the robot facing along the route (:mod:`controllers.heading_guard`):
+    while it navigates, when its odometry heading is more than ``max_error_deg`` away from the way
+    the mapping drive faced at the target node (the map's node headings, through the
+    map-to-odometry offset: the median over the last ``confirmations`` nodes confirmed), it turns
+    back until it is within ``release_deg``, and the voter steers again. Why: the thirds say which
+    way the target looks most alike, which says little when the view is of a wall; a robot angled
+    off a corridor's axis drifts into the wall it faces. Acts once ``min_confirmations`` offsets
+    are known; the voter only, and only on maps with node headings."""
+
+    enabled: bool = True
+    max_error_deg: float = 30.0
+    release_deg: float = 10.0
+    confirmations: int = 5
+    min_confirmations: int = 2
+
+    def __post_init__(self) -> None:
+        check_bool("enabled", self.enabled)
+        check_range("max_error_deg", self.max_error_deg, 0.0, 180.0, low_open=True, high_open=True,
+                    what="a number of degrees")
+        check_range("release_deg", self.release_deg, 0.0, self.max_error_deg, high_open=True, what="a number of degrees")
+        check_count("confirmations", self.confirmations, 1)
+        check_count("min_confirmations", self.min_confirmations, 1)
+        if self.min_confirmations > self.confirmations:
+            raise ValueError(f"min_confirmations ({self.min_confirmations}) must not exceed confirmations "
+                             f"({self.confirmations})")
+
+
+@dataclass(frozen=True)
 class BeliefConfig:
     """The discrete Bayes filter over the map (:mod:`controllers.belief`)."""
 
@@ -429,6 +475,10 @@ class NavigationConfig:
     speeds: ActionSpeeds = field(default_factory=ActionSpeeds)
     #: backing off when pinned against a wall (off by default)
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
+    #: backing off along the way just driven before turning in place
+    turn_room: TurnRoomConfig = field(default_factory=TurnRoomConfig)
+    #: turning back when the robot faces away from the route (the voter only)
+    heading_guard: HeadingGuardConfig = field(default_factory=HeadingGuardConfig)
     #: The two-cycle voter executes on every second tick. True: the executed action is held
     #: through the next (storing) tick, i.e. each decision lasts one two-tick vote period
     #: (a zero-order hold; smooth motion). False: the robot stands still on storing ticks,
@@ -458,11 +508,20 @@ class NavigationConfig:
     heading_hints: bool = True
     heading_hint_min_deg: float = 25.0
     heading_hint_tolerance_deg: float = 10.0
+    #: The corner turn begins where the corner node is seen best, not where it is confirmed:
+    #: a node's view passes ``t_milestone`` about half a metre before the node, and turning
+    #: there cuts the corner into its inner wall. After the confirmation the robot drives on
+    #: (FORWARD) until the node's filtered similarity has not improved for
+    #: ``heading_hint_peak_ticks``, at most ``heading_hint_approach_ticks`` (0: turn at once).
+    heading_hint_approach_ticks: int = 24
+    heading_hint_peak_ticks: int = 2
 
     def __post_init__(self) -> None:
         check_bool("heading_hints", self.heading_hints)
         for name in ("heading_hint_min_deg", "heading_hint_tolerance_deg"):
             check_range(name, getattr(self, name), 0.0, 180.0, low_open=True, high_open=True, what="a number of degrees")
+        check_count("heading_hint_approach_ticks", self.heading_hint_approach_ticks, 0)
+        check_count("heading_hint_peak_ticks", self.heading_hint_peak_ticks, 1)
         check_bool("hold_action_between_votes", self.hold_action_between_votes)
         check_count("no_vote_patience_ticks", self.no_vote_patience_ticks, 1)
         check_count("blind_forward_ticks", self.blind_forward_ticks, 0)
@@ -482,6 +541,8 @@ class NavigationConfig:
                               relocalise_heading_tolerance_deg=180.0, from_belief="off"),
             supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0,
                                goal_image_arrival=False),
+            recovery=replace(self.recovery, enabled=False), turn_room=replace(self.turn_room, enabled=False),
+            heading_guard=replace(self.heading_guard, enabled=False),
             hold_action_between_votes=False, blind_forward_ticks=0, heading_hints=False)
 
     def with_thresholds(self, thresholds: Thresholds) -> "NavigationConfig":

@@ -28,14 +28,22 @@ States (:class:`NavState`):
   action; it never searches and gets no corner turns).
 * TURNING: the corner turn. With ``node_headings`` (the mapping drive's odometry heading per
   node) and ``heading_hints`` on, after a node is confirmed, when the drive turned from it to
-  the target by at least ``heading_hint_min_deg``, the robot turns by that angle (LEFT / RIGHT on
-  the odometry heading) before the voter steers again: at corners the target is beside the
-  field of view.
+  the target by at least ``heading_hint_min_deg``, the robot drives on to where that node's view
+  is best (``heading_hint_approach_ticks``), then turns by that angle (LEFT / RIGHT on the
+  odometry heading) before the voter steers again: at corners the target is beside the field
+  of view. Also the heading guard's turn (``heading_guard``, :mod:`controllers.heading_guard`):
+  facing more than ``max_error_deg`` from the target node's mapped heading (through the
+  map-to-odometry offset measured at the nodes confirmed), the robot turns back to within
+  ``release_deg`` before the voter steers again.
 * RECOVERING: stalled against a wall (``recovery``, off by default; the run loop's
   :class:`controllers.stall.StallMonitor` tells, passed as ``stalled``): backs straight off for
   ``recovery.backup_ticks``, then navigates on.
 * SEARCHING: the voter has not seen the target for its patience; turns counter-clockwise in
   place until a third sees it (back to NAVIGATING), or re-localises after a full turn.
+  With ``turn_room`` (on by default) this turn, and that of RELOCALISING, starts after driving
+  the way just come backwards (RETRACE: the last ``turn_room.retrace_ticks`` commands negated,
+  newest first, back to the last turn in place): a robot that lost its way has usually driven
+  up to a wall, and turning there sweeps its corners across it.
 * RELOCALISING: the supervisor reported the robot lost; localisation as in LOCALISING, but
   only nodes from which the goal is reachable count, and the stretch of the old plan around
   the last node is accepted as the best of the map above ``t_lost`` (other nodes need
@@ -62,13 +70,15 @@ Transitions (:data:`TRANSITIONS`; the navigator refuses any other):
     ============  ===================================================  ============
     LOCALISING    a node matched (or the belief settled) and a plan    NAVIGATING
     LOCALISING    nothing matched in a full turn, or no plan           FAILED
-    NAVIGATING    a node confirmed where the map turns                 TURNING
+    NAVIGATING    a node confirmed where the map turns, or facing      TURNING
+                  too far from the route (the heading guard)
     NAVIGATING    the chooser lost sight of the target                 SEARCHING
     NAVIGATING    stalled: turns commanded, the gyro saw none          RECOVERING
     NAVIGATING    the supervisor reports the robot lost                RELOCALISING
     NAVIGATING    the goal reached                                     ARRIVED
     NAVIGATING    lost once more than ``max_relocalisations``          FAILED
     TURNING       facing the map's heading (or no heading), a node     NAVIGATING
+                  confirmed, or the guard's error within release_deg
     TURNING       stalled: turns commanded, the gyro saw none          RECOVERING
     TURNING       the supervisor reports the robot lost                RELOCALISING
     TURNING       the goal reached                                     ARRIVED
@@ -88,11 +98,12 @@ Transitions (:data:`TRANSITIONS`; the navigator refuses any other):
 
 Entry actions (one place: ``Navigator._enter``): LOCALISING and RELOCALISING start a new
 localiser and a new turn of the search (RELOCALISING also counts the re-localisation, resets
-the chooser, drops the plan's supervisor and the corner turn); NAVIGATING ends the turn of a
-search; SEARCHING starts one; RECOVERING counts the recovery and starts the backing's count;
-TURNING none; ARRIVED and FAILED keep their step as the final one (velocity zero). The chooser
-is reset whenever its target changes or it missed ticks: a new plan, a node confirmed, a corner
-turned, a wall backed off.
+the chooser, drops the plan's supervisor and the corner turn, and takes the way back to retrace);
+NAVIGATING ends the turn of a search; SEARCHING starts one and takes the way back to retrace;
+RECOVERING counts the recovery and starts the backing's count; TURNING none (every other state
+ends a turn back of the heading guard); ARRIVED and FAILED keep their step as the final one
+(velocity zero). The chooser is reset whenever its target changes or it missed ticks: a new
+plan, a node confirmed, a turn ended, a wall backed off.
 """
 
 from __future__ import annotations
@@ -110,6 +121,7 @@ from controllers.actions import Action, action_velocity
 from controllers.belief import BeliefSnapshot
 from controllers.choosers import ActionChooser, ChooserInputError, PolicyChooser, TargetView, VoterChooser
 from controllers.config import NavigationConfig
+from controllers.heading_guard import HeadingGuard, median_offset
 from controllers.localisation import (
     InitialLocaliser,
     Localisation,
@@ -177,6 +189,10 @@ class NavigationStep:
         return self.state in (NavState.ARRIVED, NavState.FAILED)
 
 
+#: how many ticks of the way just driven the navigator remembers (``turn_room``)
+_BEHIND_TICKS = 200
+#: the commands before which the way just driven does not lead back (``turn_room``)
+_ENDS_THE_WAY_BACK = frozenset({Action.SEARCH_ROTATE, Action.RETRACE, Action.BACKWARD})
 #: the states in which the robot drives its plan (where a stall is backed off)
 DRIVING_STATES = frozenset({NavState.NAVIGATING, NavState.TURNING, NavState.SEARCHING})
 
@@ -265,12 +281,20 @@ class Navigator:
         # odometry heading minus the map's at the last confirmations (the first localisation and
         # nodes confirmed by driving), newest last: the heading gate's map-to-odometry offset
         self._offsets: collections.deque = collections.deque(
-            maxlen=self.config.localiser.relocalise_heading_confirmations)
+            maxlen=max(self.config.localiser.relocalise_heading_confirmations, self.config.heading_guard.confirmations))
+        self._guard = None if self._headings is None else HeadingGuard(self.config.heading_guard, self._headings)
         self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
         self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
+        # the corner node's view on the way to it: [best filtered score, ticks, ticks since the best]
+        self._corner_view = [-math.inf, 0, 0]
+        self._turned_towards: Optional[NodeId] = None   # the target of the last corner turn made
         self._belief: Optional[BeliefSnapshot] = None   # this tick's belief over the map, if given
         self._backing = 0                         # ticks backed off in this recovery
         self._recoveries = 0
+        # the way just driven, newest last: (action, velocity commanded); and the commands left
+        # to drive backwards before a turn in place, next first
+        self._behind: collections.deque = collections.deque(maxlen=_BEHIND_TICKS)
+        self._retrace: list = []
 
     @classmethod
     def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
@@ -355,11 +379,14 @@ class Navigator:
         if state not in TRANSITIONS[self._state]:
             raise RuntimeError(f"navigator: no transition from {self._state.name} to {state.name}")
         self._state = state
+        if self._guard is not None and state is not NavState.TURNING:
+            self._guard.reset()
         if state is NavState.NAVIGATING:
             self._search = None
         elif state is NavState.SEARCHING:
             self._search, self._search_ticks = TurnMeter(), 0
             self._search.update(heading_rad)
+            self._retrace = self._way_back()
         elif state is NavState.RECOVERING:
             self._recoveries += 1
             self._backing = 0
@@ -367,10 +394,11 @@ class Navigator:
             self._relocalisations += 1
             self.chooser.reset()
             self._supervisor = None
-            self._hint = None
+            self._hint = self._turned_towards = None
             self._local = self._local_columns()
             self._localiser = self._new_localiser(expected, first_view=False)
             self._search, self._search_ticks = TurnMeter(), 0
+            self._retrace = self._way_back()
 
     # -- localisation ---------------------------------------------------------------------
 
@@ -389,6 +417,8 @@ class Navigator:
 
     def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         self.filter.update(row)  # keep the filter warm for the supervisor that follows
+        if self._retrace:
+            return self._clear(f"re-localisation {self._relocalisations}")
         if self._by_belief():
             return self._localise_by_belief(heading_rad)
         if self._state is NavState.RELOCALISING:
@@ -492,11 +522,7 @@ class Navigator:
         ``localiser.relocalise_heading_confirmations`` confirmations, taken as differences from
         the newest so that offsets either side of +-pi average right; None before the first
         confirmation with a heading (or on a map without headings)."""
-        if not self._offsets:
-            return None
-        newest = self._offsets[-1]
-        spread = [wrap_angle(o - newest) for o in self._offsets]
-        return wrap_angle(newest + float(np.median(spread)))
+        return median_offset(list(self._offsets)[-self.config.localiser.relocalise_heading_confirmations:])
 
     def _facing_as_mapped(self, heading_rad: Optional[float]) -> np.ndarray:
         """Per column: whether the robot faces the way the mapping drive faced at that node,
@@ -542,12 +568,13 @@ class Navigator:
             return self._back_off(decision)
 
         if self.chooser.uses_turn_hints and self._state in (NavState.NAVIGATING, NavState.TURNING):
-            turn = self._corner_turn(decision, heading_rad)
+            turn = self._corner_turn(decision, heading_rad) or self._guard_turn(decision, heading_rad)
             if turn is not None:
                 if self._state is NavState.NAVIGATING:
                     self._enter(NavState.TURNING)
                 return self._step(turn[0], decision, reason=turn[1])
             if self._state is NavState.TURNING:
+                self.chooser.reset()              # it missed the ticks of the turn
                 self._enter(NavState.NAVIGATING)
 
         target = decision.target_node
@@ -564,6 +591,8 @@ class Navigator:
                 self._enter(NavState.NAVIGATING)
                 return self._step(choice.action, decision, choice.thirds, choice.vote,
                                   f"target {target!r} back in view; {choice.reason}")
+            if self._retrace:
+                return self._clear(f"searching for target {target!r}", decision)
             turned = self._search.update(heading_rad)
             self._search_ticks += 1
             loc = self.config.localiser
@@ -575,6 +604,8 @@ class Navigator:
 
         if choice.lost_sight:
             self._enter(NavState.SEARCHING, heading_rad)
+            if self._retrace:
+                return self._clear(f"target {target!r} out of sight for {choice.unseen_ticks} ticks", decision)
             return self._step(Action.SEARCH_ROTATE, decision, choice.thirds, choice.vote,
                               f"target {target!r} out of sight for {choice.unseen_ticks} ticks; "
                               "turning counter-clockwise to find it")
@@ -592,11 +623,35 @@ class Navigator:
         self._enter(NavState.NAVIGATING)
         return None
 
+    def _way_back(self) -> list:
+        """The commands that drive the way just driven backwards (``turn_room``), next first: the
+        last ``turn_room.retrace_ticks`` moving commands negated, newest first, back to the last
+        turn in place or drive backwards (before it the way behind is not where the robot came
+        from)."""
+        room = self.config.turn_room
+        back: list = []
+        if not room.enabled:
+            return back
+        for action, velocity in reversed(self._behind):
+            if len(back) >= room.retrace_ticks or action in _ENDS_THE_WAY_BACK or velocity.v_mps < 0:
+                break
+            if not velocity.is_zero:
+                back.append(VelocityCommand(-velocity.v_mps, -velocity.w_radps))
+        return back
+
+    def _clear(self, why: str, decision: Optional[SupervisorDecision] = None) -> NavigationStep:
+        """One tick of the way back before a turn in place (``turn_room``)."""
+        velocity = self._retrace.pop(0)
+        return self._step(Action.RETRACE, decision, velocity=velocity,
+                          reason=f"{why}: driving the way just driven backwards to turn in place "
+                                 f"({len(self._retrace)} ticks to go)")
+
     def _confirmed(self, node: NodeId, heading_rad: Optional[float]) -> None:
         """The supervisor confirmed ``node`` by driving: the new anchor, a corner turn to check,
         a new target for the chooser; a search or a corner turn is over."""
         self._set_anchor(node, heading_rad)
         self._hint = None if heading_rad is None else (node, float(heading_rad))
+        self._corner_view = [-math.inf, 0, 0]
         self._remember(node)
         self.chooser.reset()
         if self._state in (NavState.SEARCHING, NavState.TURNING):
@@ -616,14 +671,46 @@ class Navigator:
         turn = wrap_angle(self._headings[target] - self._headings[node])
         if abs(turn) < math.radians(self.config.heading_hint_min_deg):
             return None
+        approach = self._approach_corner(decision, node)
+        if approach is not None:
+            return approach
         error = wrap_angle(heading_then + turn - float(heading_rad))
         if abs(error) <= math.radians(self.config.heading_hint_tolerance_deg):
-            self._hint_done = (node, target)
+            self._hint_done, self._turned_towards = (node, target), target
             self.chooser.reset()
             return None
         action = Action.LEFT if error > 0 else Action.RIGHT
         return action, (f"{decision.reason}; the map turned {math.degrees(turn):+.0f} deg from {node!r} to "
                         f"{target!r}: {action.value}, {math.degrees(error):+.0f} deg to go")
+
+    def _guard_turn(self, decision: SupervisorDecision, heading_rad: Optional[float]) -> Optional[tuple]:
+        """``(action, reason)`` of the heading guard's turn back towards the route (see
+        ``heading_guard``), or None."""
+        if self._guard is None:
+            return None
+        turn = self._guard.check(decision.target_node, heading_rad, self._offsets)
+        return None if turn is None else (turn[0], f"{decision.reason}; {turn[1]}")
+
+    def _approach_corner(self, decision: SupervisorDecision, node: NodeId) -> Optional[tuple]:
+        """``(FORWARD, reason)`` while the corner node ``node``'s view still gets better (see
+        ``heading_hint_approach_ticks``), None once the turn should begin, or at once when the
+        robot turned towards ``node`` at the corner before it (a corner of several nodes: it
+        stands at the corner already)."""
+        view = self._corner_view
+        limit, patience = self.config.heading_hint_approach_ticks, self.config.heading_hint_peak_ticks
+        if view[1] < 0 or node == self._turned_towards:
+            return None                       # the turn has begun: no more approach
+        score = decision.current_score
+        if score is not None and score > view[0]:
+            view[0], view[2] = float(score), 0
+        else:
+            view[2] += 1
+        view[1] += 1
+        if view[1] > limit or view[2] >= patience:
+            view[1] = -1
+            return None
+        return Action.FORWARD, (f"{decision.reason}; approaching corner node {node!r}: its view is best "
+                                f"{view[2]} ticks ago ({view[0]:.3f}), {view[1]}/{limit} ticks")
 
     def _thirds_for(self, node: NodeId, thirds: ThirdsInput) -> ThirdScores:
         if thirds is None:
@@ -656,11 +743,15 @@ class Navigator:
 
     def _step(self, action: Action, decision: Optional[SupervisorDecision] = None,
               thirds: Optional[ThirdScores] = None, vote: Optional[VoteResult] = None,
-              reason: str = "", turned_rad: float = 0.0) -> NavigationStep:
+              reason: str = "", turned_rad: float = 0.0,
+              velocity: Optional[VelocityCommand] = None) -> NavigationStep:
         current = decision.current_node if decision else (self._visited[-1] if self._visited else None)
+        if velocity is None:
+            velocity = action_velocity(action, self.config.speeds)
+        self._behind.append((action, velocity))     # the way just driven (turn_room)
         return NavigationStep(
             tick=self._ticks, state=self._state, action=action,
-            velocity=action_velocity(action, self.config.speeds), goal_node=self.goal_node,
+            velocity=velocity, goal_node=self.goal_node,
             planned_path=self._plan,
             path_index=decision.path_index if decision else None,
             current_node=current,

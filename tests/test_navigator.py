@@ -3,20 +3,20 @@
 import itertools
 import math
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, List, Optional, Sequence
 
 import numpy as np
 import pytest
 
-from controllers.actions import Action
+from controllers.actions import Action, action_velocity
 from controllers.choosers import PolicyChooser, VoterChooser
-from controllers.config import NavigationConfig, SupervisorConfig
+from controllers.config import HeadingGuardConfig, NavigationConfig, SupervisorConfig
 from controllers.localisation import GoalNotLocalisedError
 from controllers.navigator import TRANSITIONS, NavigationInputError, NavigationStep, Navigator, NavState
 from controllers.planner import UnknownNodeError
 from core.angles import wrap_angle
-from core.hal import Pose2D
+from core.hal import Pose2D, VelocityCommand
 from tests.synthetic_places import SyntheticPlaces, chain, drive, offset, square_loop
 
 DT_S = 0.2
@@ -252,6 +252,55 @@ def test_target_never_seen_escalates_from_search_to_relocalisation_to_failure():
     assert first_search - states.index(NavState.NAVIGATING) == config.no_vote_patience_ticks
 
 
+def _drive_then_lose_sight(config: NavigationConfig, schedule: Sequence[tuple], with_heading: bool = True) -> list:
+    """Chain 0 -> 1 -> 2, localised at node 0 (whose view stays): each ``(ticks, thirds)`` of
+    ``schedule`` in turn, then thirds that never vote until the search turn has begun; the
+    heading integrates the commands (or is None: a base without odometry heading)."""
+    graph, _ = chain(3)
+    nav = Navigator(graph, (0, 1, 2), 2, config)
+    at_node_0 = np.array([0.85, 0.35, 0.2])
+    heading = 0.0
+    steps = [nav.tick(at_node_0, heading_rad=heading)]
+    while nav.state is NavState.LOCALISING:
+        steps.append(nav.tick(at_node_0, heading_rad=heading))
+    for ticks, thirds in list(schedule) + [(200, (0.2, 0.25, 0.2))]:
+        for _ in range(ticks):
+            steps.append(nav.tick(at_node_0, thirds=lambda node: thirds, heading_rad=heading if with_heading else None))
+            heading += steps[-1].velocity.w_radps * DT_S
+            if steps[-1].action is Action.SEARCH_ROTATE:
+                return steps
+    raise AssertionError("never searched")
+
+
+def test_before_a_turn_in_place_the_robot_drives_the_way_it_came_backwards():
+    config = NavigationConfig(blind_forward_ticks=0)
+    room = config.turn_room
+    ahead, left = (0.2, 0.9, 0.2), (0.9, 0.2, 0.2)
+    steps = _drive_then_lose_sight(config, [(30, ahead), (6, left), (4, ahead)])
+    searching = [s for s in steps if s.state is NavState.SEARCHING]
+    assert [s.action for s in searching] == [Action.RETRACE] * room.retrace_ticks + [Action.SEARCH_ROTATE]
+    assert "driving the way just driven backwards to turn in place (19 ticks to go)" in searching[0].reason
+    # the last 20 moving commands (the patience's ticks stood still), negated, newest first:
+    # forward, the creeping left turn, forward again, undone in reverse
+    driven = [s.velocity for s in steps if s.state is NavState.NAVIGATING and not s.velocity.is_zero]
+    assert [s.velocity for s in searching[:-1]] == [VelocityCommand(-v.v_mps, -v.w_radps)
+                                                    for v in reversed(driven[-room.retrace_ticks:])]
+    assert {round(s.velocity.w_radps, 3) for s in searching[:-1]} == {0.0, -0.5}
+    # a long drive: retrace_ticks of it
+    steps = _drive_then_lose_sight(config, [(30, ahead)])
+    assert sum(s.action is Action.RETRACE for s in steps) == room.retrace_ticks
+    # nothing driven (a robot that never moved), or turn_room off (the paper's method): no retrace
+    assert Action.RETRACE not in {s.action for s in _drive_then_lose_sight(config, [])}
+    from dataclasses import replace
+    off = replace(config, turn_room=replace(room, enabled=False))
+    assert Action.RETRACE not in {s.action for s in _drive_then_lose_sight(off, [(30, ahead)])}
+    assert config.as_published().turn_room.enabled is False
+    with pytest.raises(ValueError, match="retrace_ticks"):
+        type(room)(retrace_ticks=0)
+    with pytest.raises(ValueError, match="RETRACE has no speed of its own"):
+        action_velocity(Action.RETRACE, config.speeds)
+
+
 def test_start_at_the_goal_arrives_without_moving():
     graph, poses = chain(3)
     places = SyntheticPlaces(poses, seed=12)
@@ -305,10 +354,12 @@ def test_weak_vote_follows_the_best_third_before_the_search_turn():
     while step.state is NavState.LOCALISING:
         step = nav.tick(at_node_0, thirds=lambda node: (0.2, 0.1, 0.1), heading_rad=0.0)
     # no third passes t_limited_control; the left third looks most like the target
-    actions = [nav.tick(at_node_0, thirds=lambda node: (0.2, 0.1, 0.1), heading_rad=0.0).action
-               for _ in range(4 + config.no_vote_patience_ticks)]
-    assert actions[:4] == [Action.LEFT] * 4
-    assert actions[-1] is Action.SEARCH_ROTATE and Action.SEARCH_ROTATE not in actions[:4]
+    steps = [nav.tick(at_node_0, thirds=lambda node: (0.2, 0.1, 0.1), heading_rad=0.0)
+             for _ in range(4 + config.no_vote_patience_ticks)]
+    assert [s.action for s in steps[:4]] == [Action.LEFT] * 4
+    # then the search (first driving the creeping left turns backwards: turn_room)
+    assert steps[-1].state is NavState.SEARCHING and NavState.SEARCHING not in {s.state for s in steps[:-1]}
+    assert steps[-1].action is Action.RETRACE
 
 
 def test_relocalisation_ignores_nodes_from_which_the_goal_cannot_be_reached():
@@ -426,7 +477,8 @@ def test_heading_hints_turn_at_corners_by_the_maps_odometry(loop):
     start = offset(poses[0], forward_m=-0.2, left_m=0.1, yaw_rad=0.1)
     hints = NavigationConfig(heading_hints=True)
     assert CONFIG.heading_hints                          # on by default (used where the map has headings)
-    off = NavigationConfig(heading_hints=False)
+    # off (the heading guard too, which also steers by the map's headings)
+    off = NavigationConfig(heading_hints=False, heading_guard=HeadingGuardConfig(enabled=False))
 
     def drive_with(config, headings):
         places = SyntheticPlaces(poses, seed=1)       # the same noise for every run
@@ -438,7 +490,21 @@ def test_heading_hints_turn_at_corners_by_the_maps_odometry(loop):
     # in the corner turn's own state, and the voter steered again after it
     assert hinted and all(s.action is Action.LEFT and s.state is NavState.TURNING for s, _ in hinted)
     turning = [s.state is NavState.TURNING for s in ep.steps]
-    assert turning == ["the map turned" in s.reason for s in ep.steps]
+    approaching = ["approaching corner node" in s.reason for s in ep.steps]
+    assert turning == [a or "the map turned" in s.reason for a, s in zip(approaching, ep.steps)]
+    # each corner's turn began where its first node was seen best: confirmed short of the node,
+    # the robot drove on and began to turn past it (by the similarity filter's lag); the corner's
+    # next node (the same place, turned 45 deg more) was turned for at once
+    begun = [i for i in range(1, len(ep.steps)) if turning[i] and not turning[i - 1]]
+    assert [ep.steps[i].current_node for i in begun] == [4, 5, 10, 11]
+    assert [approaching[i] for i in begun] == [True, False, True, False]
+    assert all(ep.steps[i].action is Action.FORWARD for i in begun[::2])
+    for i in begun[::2]:
+        corner = poses[ep.steps[i].current_node]
+        first_turn = next(j for j in range(i, len(ep.steps)) if not approaching[j])
+        along = [(p.x_m - corner.x_m) * math.cos(corner.yaw_rad) + (p.y_m - corner.y_m) * math.sin(corner.yaw_rad)
+                 for p in (ep.poses[i], ep.poses[first_turn])]
+        assert along[0] < -0.2 and 0.0 < along[1] < 0.4
     after = [ep.steps[i + 1] for i in range(len(ep.steps) - 1) if turning[i] and not turning[i + 1]]
     assert after and all(s.state is NavState.NAVIGATING for s in after)
     assert {(s.current_node, s.target_node) for s, _ in hinted} <= {(4, 5), (5, 6), (10, 11), (11, 12)}
@@ -458,7 +524,8 @@ def test_heading_hints_need_a_heading_for_every_node_and_sane_angles(loop):
     with pytest.raises(NavigationInputError, match="node 3"):
         Navigator(graph, places.node_ids, 14, CONFIG, node_headings=partial)
     for field_name, value in (("heading_hint_min_deg", 0.0), ("heading_hint_tolerance_deg", 200.0),
-                              ("heading_hints", "yes")):
+                              ("heading_hints", "yes"), ("heading_hint_approach_ticks", -1),
+                              ("heading_hint_peak_ticks", 0)):
         with pytest.raises(ValueError, match=field_name):
             NavigationConfig(**{field_name: value})
 
@@ -552,9 +619,13 @@ def test_relocalisation_searches_the_whole_map_when_nothing_near_matches():
     relocalising = [s for s in steps if s.state is NavState.RELOCALISING]
     widened = [s for s in relocalising if "searching the whole map" in s.reason]
     assert len(widened) == 1 and "no node within 4 arcs of node 0 matched" in widened[0].reason
-    # a full turn near node 0 first (counter-clockwise in place), then the whole map: node 8
-    assert all(s.velocity.v_mps == 0 for s in relocalising)
-    assert sum(s.velocity.w_radps for s in relocalising) * DT_S >= 2 * math.pi
+    # room to turn first (the way just driven, backwards), then a full turn near node 0
+    # (counter-clockwise in place), then the whole map: node 8
+    backing = [s for s in relocalising if s.action is Action.RETRACE]
+    assert backing and relocalising[1:1 + len(backing)] == backing
+    turning = [s for s in relocalising if s.action is not Action.RETRACE]
+    assert all(s.velocity.v_mps == 0 for s in turning)
+    assert sum(s.velocity.w_radps for s in turning) * DT_S >= 2 * math.pi
     assert steps[-1].state is NavState.NAVIGATING and steps[-1].planned_path[0] == 8
     assert steps[-1].relocalisations == 1
 
@@ -727,3 +798,51 @@ def test_as_published_switches_off_every_addition_and_keeps_the_rest():
     assert not p.heading_hints and p.blind_forward_ticks == 0 and not p.hold_action_between_votes
     assert p.thresholds == CONFIG.thresholds and p.filter == CONFIG.filter and p.speeds == CONFIG.speeds
     assert p.supervisor.window_ahead == CONFIG.supervisor.window_ahead
+
+
+def _drive_on_a_voter_pulling_left(config: NavigationConfig, ticks: int = 150) -> tuple[list, list]:
+    """Chain 0 -> 1 -> 2 mapped facing 0.3 rad, odometry's frame 1.0 rad off the map's; localised
+    at node 0 (whose view stays), then the left third always matches best: the voter keeps
+    turning left. The steps after the localisation, and the heading error against the route
+    after each (degrees)."""
+    graph, _ = chain(3)
+    nav = Navigator(graph, (0, 1, 2), 2, config, node_headings={0: 0.3, 1: 0.3, 2: 0.3})
+    at_node_0 = np.array([0.85, 0.35, 0.2])
+    heading, route = 1.3, 1.3
+    steps, errors = [], []
+    while nav.state is NavState.LOCALISING:
+        nav.tick(at_node_0, heading_rad=heading)
+    for _ in range(ticks):
+        steps.append(nav.tick(at_node_0, thirds=lambda node: (0.9, 0.2, 0.2), heading_rad=heading))
+        heading += steps[-1].velocity.w_radps * DT_S
+        errors.append(math.degrees(wrap_angle(heading - route)))
+    return steps, errors
+
+
+def test_the_heading_guard_turns_a_robot_back_that_faces_away_from_the_route():
+    guard = HeadingGuardConfig(min_confirmations=1)        # the first localisation's offset alone
+    steps, errors = _drive_on_a_voter_pulling_left(NavigationConfig(heading_guard=guard))
+    guarded = [s for s in steps if "turning back" in s.reason]
+    assert guarded and all(s.action is Action.RIGHT and s.state is NavState.TURNING for s in guarded)
+    # never more than the limit and one tick's turn past it; turned back to within release_deg,
+    # then the voter steered (left) again: the robot swings between the two
+    assert max(errors) <= guard.max_error_deg + math.degrees(0.5 * DT_S) + 1e-9
+    first = next(i for i, s in enumerate(steps) if "turning back" in s.reason)
+    released = next(i for i in range(first, len(steps)) if steps[i].state is NavState.NAVIGATING)
+    assert errors[released - 1] <= guard.release_deg < errors[released - 2]
+    assert Action.LEFT in {s.action for s in steps[released:released + 3]}
+    # without the guard the voter turns the robot round; and the paper's method has none
+    _, unguarded = _drive_on_a_voter_pulling_left(NavigationConfig(heading_guard=replace(guard, enabled=False)))
+    assert max(unguarded) > 90.0
+    assert NavigationConfig().as_published().heading_guard.enabled is False
+    # with fewer offsets than min_confirmations it waits
+    _, waiting = _drive_on_a_voter_pulling_left(NavigationConfig(heading_guard=replace(guard, min_confirmations=2)))
+    assert max(waiting) > 90.0
+
+
+def test_heading_guard_settings_are_checked():
+    for kwargs, name in (({"max_error_deg": 0.0}, "max_error_deg"), ({"release_deg": 40.0}, "release_deg"),
+                         ({"confirmations": 0}, "confirmations"), ({"min_confirmations": 6}, "min_confirmations"),
+                         ({"enabled": 1}, "enabled")):
+        with pytest.raises(ValueError, match=name):
+            HeadingGuardConfig(**kwargs)

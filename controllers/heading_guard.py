@@ -1,0 +1,80 @@
+"""Keeping the robot facing along the route: the map's node headings against the odometry heading.
+
+The mapping drive's odometry heading at every node (``TopoMap.odom_headings``) says which way the
+route runs there. Odometry headings of two drives differ by a constant offset (the frames' zero)
+plus slow drift, so the offset measured at the nodes the robot confirmed (odometry heading then
+minus the map's heading there) turns a node's mapped heading into the heading the robot's own
+odometry should read when it faces along the route at that node. A single confirmation is off by
+however the robot was angled when it confirmed; the median over several is not.
+
+:class:`HeadingGuard` compares the robot's heading with the target node's mapped heading and,
+past ``max_error_deg``, asks to turn back (LEFT / RIGHT, which creep forward) until the error is
+within ``release_deg`` (hysteresis: it does not chatter at the limit). See
+:class:`controllers.config.HeadingGuardConfig` for why.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Hashable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from controllers.actions import Action
+from controllers.config import HeadingGuardConfig
+from core.angles import wrap_angle
+
+NodeId = Hashable
+
+
+def median_offset(offsets: Sequence[float]) -> Optional[float]:
+    """The circular median of heading offsets (radians), as differences from the newest so that
+    offsets either side of +-pi average right; None for none."""
+    if not offsets:
+        return None
+    newest = float(offsets[-1])
+    spread = [wrap_angle(float(o) - newest) for o in offsets]
+    return wrap_angle(newest + float(np.median(spread)))
+
+
+class HeadingGuard:
+    """Turns the robot back towards the route when it faces too far from it (see the module
+    docstring). ``headings``: node -> the mapping drive's odometry heading there (radians)."""
+
+    def __init__(self, config: HeadingGuardConfig, headings: Mapping[NodeId, float]):
+        self.config = config
+        self._headings = dict(headings)
+        self._active = False
+
+    @property
+    def active(self) -> bool:
+        """Whether the guard is turning the robot back now."""
+        return self._active
+
+    def reset(self) -> None:
+        """Forget a turn back in progress (a new state, a new plan)."""
+        self._active = False
+
+    def error_rad(self, target: NodeId, heading_rad: float, offset_rad: float) -> float:
+        """How far the robot faces from the target's mapped heading (positive: to its left)."""
+        return wrap_angle(float(heading_rad) - (self._headings[target] + float(offset_rad)))
+
+    def check(self, target: Optional[NodeId], heading_rad: Optional[float],
+              offsets: Sequence[float]) -> Optional[tuple[Action, str]]:
+        """``(action, reason)`` while the robot must turn back towards the target's mapped heading,
+        else None. ``offsets``: the map-to-odometry heading offsets measured so far, newest last
+        (the last ``confirmations`` count)."""
+        cfg = self.config
+        offsets = list(offsets)[-cfg.confirmations:]
+        if (not cfg.enabled or target is None or heading_rad is None or target not in self._headings
+                or len(offsets) < cfg.min_confirmations):
+            self._active = False
+            return None
+        error = self.error_rad(target, heading_rad, median_offset(offsets))
+        limit = math.radians(cfg.release_deg if self._active else cfg.max_error_deg)
+        self._active = abs(error) > limit
+        if not self._active:
+            return None
+        action = Action.RIGHT if error > 0 else Action.LEFT
+        return action, (f"facing {math.degrees(error):+.0f} deg from the map's heading at node {target!r} "
+                        f"(limit {cfg.max_error_deg:g}): turning back ({action.value}) to within {cfg.release_deg:g}")
