@@ -132,6 +132,9 @@ class NodeSwitchSupervisor:
         self._image: Optional[float] = None
         self._image_peak: Optional[float] = None
         self._image_flat = 0
+        # why the goal node's score, and the goal image's, said the robot is there ("": not yet)
+        self._node_settled = ""
+        self._image_settled = ""
 
     @property
     def index(self) -> int:
@@ -233,36 +236,42 @@ class NodeSwitchSupervisor:
         """The goal passed its confirmation; arrive once its filtered score stops improving.
 
         A view some way before the goal node may already pass ``t_milestone`` (the band is
-        wide), so stopping at the first pass stops short. The robot keeps steering at the goal
-        while the score sets new highs; it arrives when the score has not improved for
+        wide), and a node may be confirmed as the best of the map a metre short of it, so
+        stopping at the confirmation stops short. The robot keeps steering at the goal while the
+        score sets new highs; the goal node is settled when the score has not improved for
         ``goal_settle_ticks`` ticks or has fallen clearly below its peak (it is passing the
-        node). Standing still at the goal arrives after ``goal_settle_ticks``. With a goal image
-        (``supervisor.goal_image_arrival``) its own score takes over once it passed
-        ``t_milestone`` (:meth:`_image_arrival`).
+        node). Standing still at the goal settles after ``goal_settle_ticks``. With a goal image
+        (``supervisor.goal_image_arrival``) whose score passed ``t_milestone``, the view being
+        where the image was taken (:meth:`_image_arrival`) decides instead, once the goal node's
+        own score has passed ``t_milestone`` since its confirmation (the robot stands at the
+        node's place); while it has not (the node was confirmed as the best of the map, which
+        can happen a metre short), the goal node must settle too. The node alone stops up to
+        half an arc from the goal; the image alone stopped a metre short when a turn lowered its
+        score there.
         """
         last = len(self.path) - 1
         score = float(path_scores[last])
         cfg = self.config.supervisor
-        by_image = self._image_arrival()
-        if by_image:
-            return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[last],
-                                f"{self._goal_reason}; {by_image}")
-        if self._image_peak is not None and self._image_peak > self.config.thresholds.t_milestone:
-            return self._decision(self._state, path_scores, None,
-                                  f"goal in sight: the goal image scores {self._image:.3f}, peak "
-                                  f"{self._image_peak:.3f}, {self._image_flat}/{cfg.goal_settle_ticks} "
-                                  "ticks without improving")
         if score > self._goal_peak + 0.005:
             self._goal_peak, self._goal_flat = score, 0
         else:
             self._goal_flat += 1
-        if self._goal_flat >= cfg.goal_settle_ticks or score < self._goal_peak - 0.03:
+        if not self._node_settled and (self._goal_flat >= cfg.goal_settle_ticks or score < self._goal_peak - 0.03):
+            self._node_settled = f"settled at filtered {score:.3f} (peak {self._goal_peak:.3f})"
+        self._image_settled = self._image_settled or self._image_arrival()
+        image_in_play = self._image_peak is not None and self._image_peak > self.config.thresholds.t_milestone
+        at_node = self._goal_peak > self.config.thresholds.t_milestone
+        if (self._image_settled and (at_node or self._node_settled)) or (self._node_settled and not image_in_play):
+            why = "; ".join(w for w in (self._node_settled, self._image_settled) if w)
             return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[last],
-                                f"{self._goal_reason}; settled at filtered {score:.3f} "
-                                f"(peak {self._goal_peak:.3f})")
-        return self._decision(self._state, path_scores, None,
-                              f"goal in sight: filtered {score:.3f}, peak {self._goal_peak:.3f}, "
-                              f"{self._goal_flat}/{cfg.goal_settle_ticks} ticks without improving")
+                                f"{self._goal_reason}; {why}")
+        node = (self._node_settled or f"filtered {score:.3f}, peak {self._goal_peak:.3f}, "
+                f"{self._goal_flat}/{cfg.goal_settle_ticks} ticks without improving")
+        image = ("" if not image_in_play else "; the goal image " + (
+            "settled" if self._image_settled else
+            f"scores {self._image:.3f}, peak {self._image_peak:.3f}, {self._image_flat}/{cfg.goal_settle_ticks} "
+            "ticks without improving"))
+        return self._decision(self._state, path_scores, None, f"goal in sight: {node}{image}")
 
     def _image_arrival(self) -> str:
         """Whether the view has passed the place the goal image shows (a reason), or "".

@@ -295,7 +295,7 @@ def test_a_goal_image_peak_before_the_goal_node_is_confirmed_does_not_arrive():
     falling = [sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=0.4) for _ in range(4)]
     arrived = next(d for d in falling if d.state is SupervisorState.GOAL_REACHED)
     assert "the goal image" in arrived.reason
-    peak = float(arrived.reason.split("peak ")[1].split(" ")[0])
+    peak = float(arrived.reason.split("the goal image")[1].split("peak ")[1].split(" ")[0])
     assert peak == pytest.approx(0.75), "the peak counts from the confirmation on, not the early 0.9"
 
 
@@ -310,6 +310,27 @@ def test_past_the_goal_nodes_picture_the_robot_drives_on_while_the_goal_image_im
     assert all(d.state is not SupervisorState.GOAL_REACHED for d in flat_node)   # the node rule alone: 5 ticks
     d = sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=TH.t_milestone + 0.16)
     assert d.state is SupervisorState.GOAL_REACHED and "the goal image" in d.reason
+
+
+def test_a_goal_image_that_stops_improving_short_of_the_goal_node_waits_for_the_node():
+    """Confirmed as the best of the map a metre short (below t_milestone), the goal node's score
+    still rises while the goal image's falls for a few ticks (the robot weaves): no arrival until
+    the node settles too, and then at once (the image said so already)."""
+    sup = NodeSwitchSupervisor([0, 1, 2], range(5), replace(IMAGE, supervisor=replace(IMAGE.supervisor,
+                                                                                     confirm_best_of_map=True)))
+    feed(sup, [row(5, base=0.0, n0=0.85)] * 3 + [row(5, base=0.0, n0=0.3, n1=0.2)] * 2)   # left node 0
+    assert sup.tick(row(5, base=0.0, n1=TH.t_milestone + 0.05)).confirmed_node == 1
+    feed(sup, [row(5, base=0.0, n1=TH.t_change_node - 0.05, n2=0.1)] * 2)                # left node 1
+    weak = TH.t_lost + 0.02                            # the best of the map, below t_milestone
+    rising_node = [row(5, base=0.0, n1=0.0, n2=weak + 0.005 * k) for k in range(1, 9)]
+    images = [0.8, 0.8] + [0.7] * 6                     # past t_milestone, then a clear fall
+    ds = [sup.tick(r, goal_score=g) for r, g in zip(rising_node, images)]
+    assert all(d.state is not SupervisorState.GOAL_REACHED for d in ds)
+    assert "the goal image settled" in ds[-1].reason
+    flat = [sup.tick(rising_node[-1], goal_score=0.7) for _ in range(5)]
+    states = [d.state for d in flat]
+    assert states.count(SupervisorState.GOAL_REACHED) == 1 and states[-1] is SupervisorState.GOAL_REACHED
+    assert "settled at filtered" in flat[-1].reason and "the goal image" in flat[-1].reason
 
 
 def test_a_goal_image_that_never_matches_well_leaves_arrival_to_the_goal_node():
