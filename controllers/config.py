@@ -391,13 +391,21 @@ class HeadingGuardConfig:
     back until it is within ``release_deg``, and the voter steers again. Why: the thirds say which
     way the target looks most alike, which says little when the view is of a wall; a robot angled
     off a corridor's axis drifts into the wall it faces. Acts once ``min_confirmations`` offsets
-    are known; the voter only, and only on maps with node headings."""
+    are known; the voter only, and only on maps with node headings.
+
+    ``final_approach``: once the goal node is confirmed and the robot drives on until the goal
+    is seen best, it holds the goal node's mapped heading (FORWARD within
+    ``final_tolerance_deg``, else FORWARD_LEFT / FORWARD_RIGHT) instead of following the votes:
+    where the goal matches weakly the voter weaves left and right in place, and arrival, which
+    waits for the scores to stop improving, then comes without the robot having moved."""
 
     enabled: bool = True
     max_error_deg: float = 30.0
     release_deg: float = 10.0
     confirmations: int = 5
     min_confirmations: int = 2
+    final_approach: bool = True
+    final_tolerance_deg: float = 5.0
 
     def __post_init__(self) -> None:
         check_bool("enabled", self.enabled)
@@ -406,6 +414,9 @@ class HeadingGuardConfig:
         check_range("release_deg", self.release_deg, 0.0, self.max_error_deg, high_open=True, what="a number of degrees")
         check_count("confirmations", self.confirmations, 1)
         check_count("min_confirmations", self.min_confirmations, 1)
+        check_bool("final_approach", self.final_approach)
+        check_range("final_tolerance_deg", self.final_tolerance_deg, 0.0, 180.0, high_open=True,
+                    what="a number of degrees")
         if self.min_confirmations > self.confirmations:
             raise ValueError(f"min_confirmations ({self.min_confirmations}) must not exceed confirmations "
                              f"({self.confirmations})")

@@ -59,6 +59,23 @@ class HeadingGuard:
         """How far the robot faces from the target's mapped heading (positive: to its left)."""
         return wrap_angle(float(heading_rad) - (self._headings[target] + float(offset_rad)))
 
+    def hold(self, node: NodeId, heading_rad: Optional[float], offsets: Sequence[float]) -> Optional[tuple[Action, str]]:
+        """``(action, reason)`` that drives on along ``node``'s mapped heading (the final
+        approach, ``final_approach``), or None where the guard cannot tell (off, no heading, too
+        few offsets)."""
+        cfg = self.config
+        offsets = list(offsets)[-cfg.confirmations:]
+        if (not (cfg.enabled and cfg.final_approach) or heading_rad is None or node not in self._headings
+                or len(offsets) < cfg.min_confirmations):
+            return None
+        error = self.error_rad(node, heading_rad, median_offset(offsets))
+        if abs(error) <= math.radians(cfg.final_tolerance_deg):
+            action = Action.FORWARD
+        else:
+            action = Action.FORWARD_RIGHT if error > 0 else Action.FORWARD_LEFT
+        return action, (f"final approach along the map's heading at node {node!r}: facing "
+                        f"{math.degrees(error):+.0f} deg from it, {action.value}")
+
     def check(self, target: Optional[NodeId], heading_rad: Optional[float],
               offsets: Sequence[float]) -> Optional[tuple[Action, str]]:
         """``(action, reason)`` while the robot must turn back towards the target's mapped heading,

@@ -34,7 +34,9 @@ States (:class:`NavState`):
   of view. Also the heading guard's turn (``heading_guard``, :mod:`controllers.heading_guard`):
   facing more than ``max_error_deg`` from the target node's mapped heading (through the
   map-to-odometry offset measured at the nodes confirmed), the robot turns back to within
-  ``release_deg`` before the voter steers again.
+  ``release_deg`` before the voter steers again. In the final approach (the goal node
+  confirmed, driving on until the goal is seen best) the guard holds the goal node's mapped
+  heading instead of the votes (``heading_guard.final_approach``): the state stays NAVIGATING.
 * RECOVERING: stalled against a wall (``recovery``, off by default; the run loop's
   :class:`controllers.stall.StallMonitor` tells, passed as ``stalled``): backs straight off for
   ``recovery.backup_ticks``, then navigates on.
@@ -576,6 +578,11 @@ class Navigator:
             if self._state is NavState.TURNING:
                 self.chooser.reset()              # it missed the ticks of the turn
                 self._enter(NavState.NAVIGATING)
+            if self._supervisor.settling and self._guard is not None:
+                hold = self._guard.hold(self.goal_node, heading_rad, self._offsets)
+                if hold is not None:
+                    self.chooser.reset()          # it steers again only if the approach ends otherwise
+                    return self._step(hold[0], decision, reason=f"{decision.reason}; {hold[1]}")
 
         target = decision.target_node
         view = TargetView(target, lambda: self._thirds_for(target, thirds),

@@ -142,6 +142,12 @@ class NodeSwitchSupervisor:
         return self._index
 
     @property
+    def settling(self) -> bool:
+        """Whether the goal node is confirmed and the robot is in its final approach (arrival
+        not yet declared)."""
+        return self._goal_peak is not None and self._final is None
+
+    @property
     def state(self) -> SupervisorState:
         return self._state
 
