@@ -56,7 +56,7 @@ def test_confirmations_wrong_places_and_lost_events():
     assert counts == {"episodes": 2, "confirmations": 7, "wrong": 2, "localisations": 3, "wrong_localisations": 1,
                       "belief_localisations": 0, "belief_wrong_localisations": 0, "belief_steps": 0,
                       "belief_right": 0, "belief_confident": 0, "belief_confident_right": 0,
-                      "pinned_episodes": 0, "pinned_steps": 0,
+                      "pinned_episodes": 0, "pinned_steps": 0, "collisions": {},
                       "median_distance_m": 0.2}
     assert d.belief_summary() is None                       # a log without the belief
 
@@ -161,5 +161,6 @@ def test_collisions_are_told_by_what_the_robot_was_commanded_then():
     d = diagnose(STEPS + [{**s, "step": 11 + s["step"]} for s in steps], POSES)
     assert d.collisions_by_doing() == {"driving": 1, "turning in place": 3}
     assert d.summary().endswith("4 collisions: 3 turning in place, 1 driving")
+    assert confirmation_counts([d, d])["collisions"] == {"driving": 2, "turning in place": 6}
     # a log without the count (written before it was logged, or not by the simulator) has none
     assert collision_onsets(STEPS) == () and "collisions" not in diagnose(STEPS, POSES).summary()

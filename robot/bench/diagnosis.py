@@ -354,8 +354,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
 
 
 def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
-    """Totals over episodes: confirmations and wrong ones, the same for (re-)localisations, and
-    the episodes and steps pinned."""
+    """Totals over episodes: confirmations and wrong ones, the same for (re-)localisations, the
+    episodes and steps pinned, and the collisions by what the robot was doing."""
     every = [c for d in diagnoses for c in d.confirmations]
     localised = [c for c in every if c.kind == "localised"]
     judged = [c for c in localised if c.belief_wrong is not None]
@@ -367,4 +367,13 @@ def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
             "belief_confident_right": sum(d.belief_confident_right for d in diagnoses),
             "pinned_episodes": sum(bool(d.pinned) for d in diagnoses),
             "pinned_steps": sum(d.pinned_steps for d in diagnoses),
+            "collisions": _sum_counts(d.collisions_by_doing() for d in diagnoses),
             "median_distance_m": None if not every else round(statistics.median(c.distance_m for c in every), 3)}
+
+
+def _sum_counts(counts: Iterable[Mapping]) -> dict:
+    total: dict = {}
+    for c in counts:
+        for key, n in c.items():
+            total[key] = total.get(key, 0) + n
+    return total

@@ -280,6 +280,16 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
                                  f"{c['belief_confident']} | {c['belief_confident_right']} | "
                                  f"{c['belief_localisations']} | {c['wrong_localisations']} | "
                                  f"{c['belief_wrong_localisations']} |")
+        if any(c["collisions"] for c in counted.values()):
+            doings = ("turning in place", "driving", "retracing", "backing off", "standing")
+            lines += ["", "Collisions (new contacts with walls and props, from the simulator) by what the robot was "
+                      "commanded at the step each began (`robot/bench/diagnosis.py`).", "",
+                      "| route | method | episodes | collisions | per episode | " + " | ".join(doings) + " |",
+                      "|---|---|---|---|---|" + "---|" * len(doings)]
+            for (label, method), c in counted.items():
+                total = sum(c["collisions"].values())
+                lines.append(f"| {label} | {method} | {c['episodes']} | {total} | {total / c['episodes']:.2f} | "
+                             + " | ".join(str(c["collisions"].get(d, 0)) for d in doings) + " |")
     timed = [e["timing"] for e in episodes if e["timing"]["ms_per_step"]["total_ms"] > 0]
     if timed:
         keys = ("read_ms", "describe_ms", "decide_ms", "tick_ms", "total_ms")
