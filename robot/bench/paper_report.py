@@ -34,7 +34,8 @@ COLORS = {"ours": (0.12, 0.47, 0.71), "ours-hints": (0.17, 0.63, 0.17), "ours-no
 
 
 def summarise_episodes(episodes: Sequence[dict]) -> dict:
-    """SR (1.0 m, 0.5 m), mean SPL, mean final distance, re-localisations and collisions."""
+    """SR (1.0 m, 0.5 m), mean SPL, final distance (mean, median, 90th percentile),
+    re-localisations and collisions."""
     n = len(episodes)
     if n == 0:
         return {"trials": 0}
@@ -45,9 +46,73 @@ def summarise_episodes(episodes: Sequence[dict]) -> dict:
             "success_rate_0_5m": round(sum(x["success_0_5m"] for x in m) / n, 4),
             "spl": round(float(np.mean(spl)), 4),
             "mean_final_distance_m": round(float(np.mean(finals)), 3) if finals else None,
+            "final_distance_p50_m": round(float(np.percentile(finals, 50)), 3) if finals else None,
+            "final_distance_p90_m": round(float(np.percentile(finals, 90)), 3) if finals else None,
             "mean_relocalisations": round(float(np.mean([x["relocalisations"] for x in m])), 3),
             "collisions": int(sum(x["collisions"] or 0 for x in m)),
             "failures": [e["trial"]["trial"] for e in episodes if not e["metrics"]["success"]]}
+
+
+def overall(main: Sequence[dict], routes: Sequence[tuple[str, str]], methods: Sequence[str], summary: dict,
+            diagnoses: Optional[dict] = None) -> dict:
+    """Each method over all routes, the numbers a reader checks first: the route-mean SR and the
+    lowest route's, SR within 0.5 m, SPL, final distance and collisions over all trials, the share
+    of (re-)localisations at a wrong node (from the step logs, where there are some) and the margin
+    of the route-mean SR over the SPTM-style baseline's. ``None`` where a route has no trial yet."""
+    diagnoses = diagnoses or {}
+    found = {}
+    for m in methods:
+        cells = {f"{w}:{r}": summary[f"{w}:{r}"][m] for w, r in routes}
+        eps = [e for e in main if e["trial"]["method"] == m and _route_id(e) in set(routes)]
+        if not eps:
+            continue
+        s = summarise_episodes(eps)
+        complete = all(c["trials"] for c in cells.values())
+        lowest = min(cells, key=lambda k: cells[k]["success_rate"]) if complete else None
+        counts = None
+        judged = [diagnoses[id(e)] for e in eps if id(e) in diagnoses]
+        if judged:
+            from robot.bench.diagnosis import confirmation_counts
+
+            c = confirmation_counts(judged)
+            counts = {"localisations": c["localisations"], "wrong": c["wrong_localisations"],
+                      "share": round(c["wrong_localisations"] / c["localisations"], 4) if c["localisations"] else None}
+        found[m] = {"trials": s["trials"],
+                    "route_mean_sr": round(float(np.mean([c["success_rate"] for c in cells.values()])), 4)
+                    if complete else None,
+                    "lowest_route": lowest, "lowest_route_sr": cells[lowest]["success_rate"] if lowest else None,
+                    "success_rate_0_5m": s["success_rate_0_5m"], "spl": s["spl"],
+                    "final_distance_p50_m": s["final_distance_p50_m"],
+                    "final_distance_p90_m": s["final_distance_p90_m"],
+                    "collisions_per_episode": round(s["collisions"] / s["trials"], 3),
+                    "wrong_localisations": counts}
+    base = found.get("sptm", {}).get("route_mean_sr")
+    for m, o in found.items():
+        o["margin_over_sptm"] = (round(o["route_mean_sr"] - base, 4)
+                                 if m != "sptm" and base is not None and o["route_mean_sr"] is not None else None)
+    return found
+
+
+def _overall_lines(over: dict, routes: Sequence[tuple[str, str]]) -> list[str]:
+    def num(v, fmt="{:.2f}"):
+        return "-" if v is None else fmt.format(v)
+
+    lines = ["## Over all routes", "",
+             f"Each method over the {len(routes)} routes: SR is the mean of the routes' success rates (as in the "
+             "table's Average), the lowest route beside it; SR within 0.5 m, SPL, the final distance to the goal "
+             "and collisions are over all trials; wrong (re-)localisations come from the step logs (the rule in "
+             "the section below); the margin is the SR's over the SPTM-style baseline's.", "",
+             "| method | trials | SR | lowest route | SR 0.5 m | SPL | final distance p50 / p90 (m) | "
+             "collisions per episode | wrong (re-)localisations | margin over the baseline |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for m, o in over.items():
+        w = o["wrong_localisations"]
+        wrong = "-" if not w or w["share"] is None else f"{w['wrong']} of {w['localisations']} ({w['share']:.0%})"
+        lowest = "-" if o["lowest_route"] is None else f"{o['lowest_route_sr']:.2f} ({o['lowest_route']})"
+        lines.append(f"| {m} | {o['trials']} | {num(o['route_mean_sr'])} | {lowest} | {o['success_rate_0_5m']:.2f} | "
+                     f"{o['spl']:.2f} | {num(o['final_distance_p50_m'])} / {num(o['final_distance_p90_m'])} | "
+                     f"{o['collisions_per_episode']:.2f} | {wrong} | {num(o['margin_over_sptm'], '{:+.2f}')} |")
+    return lines
 
 
 def _route_id(e: dict) -> tuple[str, str]:
@@ -117,16 +182,17 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
                         for w, d in maps.items()},
                "summary": summary, "sparsity_route": sparsity_route, "sparsity": sparsity,
                **({"partial": partial} if partial else {}), "episodes": deterministic}
-    files = [write_text(out / "results.json", json.dumps(results, indent=2) + "\n")]
     timings = {e["trial"]["world"] + "/" + e["trial"]["route"] + "/" + e["trial"]["method"]
                + ("" if e["trial"]["sparsity"] is None else f"@{e['trial']['sparsity']:g}")
                + f"/{e['trial']['trial']}": e["timing"] for e in [*main, *study]}
-    files.append(write_text(out / "timings.json", json.dumps(timings, indent=2) + "\n"))
+    files = [write_text(out / "timings.json", json.dumps(timings, indent=2) + "\n")]
 
     table = _paper_table(routes, methods, summary)
     diagnoses = _diagnoses([*main, *study], out, specs)
+    results["overall"] = overall(main, routes, methods, summary, diagnoses)
+    files.insert(0, write_text(out / "results.json", json.dumps(results, indent=2) + "\n"))
     md = _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route,
-                   results["maps"], [*main, *study], out, partial, diagnoses)
+                   results["maps"], [*main, *study], out, partial, diagnoses, results["overall"])
     files.append(write_text(out / "results.md", md))
     files += _plots(out, routes, methods, summary, main, specs, sparsity, diagnoses)
     return {"table": table, "files": files}
@@ -197,7 +263,8 @@ def _episode_label(e: dict) -> str:
 
 
 def _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route, maps,
-              episodes, out: Path, partial: Optional[dict] = None, diagnoses: Optional[dict] = None) -> str:
+              episodes, out: Path, partial: Optional[dict] = None, diagnoses: Optional[dict] = None,
+              over: Optional[dict] = None) -> str:
     diagnoses = diagnoses or {}
     trials = max((s["trials"] for r in summary.values() for s in r.values()), default=0)
     lines = ["# The paper's table in PyBullet", ""]
@@ -211,16 +278,19 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
              "route's corridor, corners cut: `sim/shortest_path.py`). Trials start at the route start "
              "offset by up to 0.3 m and 15 deg, under appearance seeds 1, 2, ... (the maps: seed 0).", "",
              table, "", "## Per route", "",
-             "| route | method | trials | SR 1.0 m | SR 0.5 m | SPL | mean final distance (m) | mean re-localisations "
-             "| collisions | failed trials |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "| route | method | trials | SR 1.0 m | SR 0.5 m | SPL | final distance mean / p50 / p90 (m) | "
+             "mean re-localisations | collisions | failed trials |", "|---|---|---|---|---|---|---|---|---|---|"]
     for w, r in routes:
         for m in methods:
             s = summary[f"{w}:{r}"][m]
             if not s["trials"]:
                 continue
             lines.append(f"| {w} {r} | {m} | {s['trials']} | {s['success_rate']:.2f} | {s['success_rate_0_5m']:.2f} | "
-                         f"{s['spl']:.2f} | {s['mean_final_distance_m']} | {s['mean_relocalisations']:.2f} | "
+                         f"{s['spl']:.2f} | {s['mean_final_distance_m']} / {s['final_distance_p50_m']} / "
+                         f"{s['final_distance_p90_m']} | {s['mean_relocalisations']:.2f} | "
                          f"{s['collisions']} | {', '.join(map(str, s['failures'])) or '-'} |")
+    if over:
+        lines += ["", *_overall_lines(over, routes)]
     lines += ["", "Maps (built from each world's walkthrough under appearance 0):", ""]
     for w, info in maps.items():
         lines.append(f"- {w}: {info['nodes']} nodes, mean arc {info['mean_arc_length_m']} m, "
