@@ -60,10 +60,11 @@ def overall(main: Sequence[dict], routes: Sequence[tuple[str, str]], methods: Se
     of (re-)localisations at a wrong node (from the step logs, where there are some) and the margin
     of the route-mean SR over the SPTM-style baseline's. ``None`` where a route has no trial yet."""
     diagnoses = diagnoses or {}
+    planned = set(routes)
     found = {}
     for m in methods:
         cells = {f"{w}:{r}": summary[f"{w}:{r}"][m] for w, r in routes}
-        eps = [e for e in main if e["trial"]["method"] == m and _route_id(e) in set(routes)]
+        eps = [e for e in main if e["trial"]["method"] == m and _route_id(e) in planned]
         if not eps:
             continue
         s = summarise_episodes(eps)
