@@ -400,8 +400,8 @@ class HeadingGuardConfig:
     waits for the scores to stop improving, then comes without the robot having moved."""
 
     enabled: bool = True
-    max_error_deg: float = 30.0
-    release_deg: float = 10.0
+    max_error_deg: float = 15.0
+    release_deg: float = 5.0
     confirmations: int = 5
     min_confirmations: int = 2
     final_approach: bool = True
