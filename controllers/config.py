@@ -102,7 +102,8 @@ class Thresholds:
 class ThresholdFractions:
     """Where :meth:`Thresholds.from_map` places the thresholds in the band between the
     similarity of two consecutive nodes (``T_add_new_node``) and that of a view taken at a node
-    (the map's self-similarity). The defaults are the values the paper harness runs with."""
+    (the map's self-similarity). The fractions' defaults are the values the paper harness runs
+    with; ``reference_sparsity`` is neutral here (None) and set in ``configs/default.yaml``."""
 
     #: t_milestone = T_add_new_node + milestone x band: low, because under other lighting than
     #: the mapping run a view at a node often scores little above its neighbours' level
@@ -114,10 +115,17 @@ class ThresholdFractions:
     #: t_limited_control when the voter sees contrast scores (episode.thirds_contrast): a third
     #: votes when the target is closer to the node it resembles most than to a typical node
     control_contrast: float = 0.5
+    #: the band's lower edge is the similarity of two consecutive nodes of a map of this sparsity
+    #: (from the map's calibration), not the map's own T_add_new_node: how alike a view must be to
+    #: a node to be there does not change with the node spacing the map was built at. None: the
+    #: map's own T_add_new_node (also for maps without calibration statistics)
+    reference_sparsity: Optional[float] = None
 
     def __post_init__(self) -> None:
         for name in ("milestone", "change_node", "lost", "control_contrast"):
             check_range(name, getattr(self, name), 0.0, 1.0, low_open=True, high_open=True)
+        if self.reference_sparsity is not None:
+            check_range("reference_sparsity", self.reference_sparsity, 0.0, 1.0)
         if not self.change_node < self.milestone:
             raise ValueError(f"change_node ({self.change_node}) must be below milestone ({self.milestone}): "
                              "a node is left below the level at which it is confirmed")

@@ -52,6 +52,7 @@ monotonically. All statistics used are returned for the map file.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Mapping, Optional
 
 import numpy as np
 
@@ -139,6 +140,23 @@ def lag_similarities(descriptors: np.ndarray, max_lag: int, block: int = 256) ->
     return out
 
 
+def node_decay_fraction(sparsity: float) -> float:
+    """How far (0..1) the similarity decays from ``s_top`` towards ``s_floor`` before a new node:
+    ``0.1 + 0.8 * sparsity``."""
+    return 0.1 + 0.8 * float(sparsity)
+
+
+def node_level_at(stats: Mapping, sparsity: float) -> Optional[float]:
+    """``T_add_new_node`` that the calibration ``stats`` (``Calibration.stats``) give at another
+    ``sparsity``: the similarity of two consecutive nodes had the map been built at that spacing.
+    ``None`` when the stats lack ``s_top`` or ``s_floor`` (older maps)."""
+    try:
+        s_top, s_floor = float(stats["s_top"]), float(stats["s_floor"])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return s_top - node_decay_fraction(sparsity) * (s_top - s_floor)
+
+
 def _first_lag_below(curve: np.ndarray, level: float) -> int | None:
     """The first lag k (1-based) with curve[k-1] < level, or None."""
     hits = np.nonzero(curve < level)[0]
@@ -185,7 +203,7 @@ def calibrate(descriptors: np.ndarray, config: MappingConfig, *, max_lag: int = 
                         f"for its frame rate; loop_min_gap_frames set to {lag_cap}")
     near_mask = upper & (dseq >= gap)
     non_neighbour = sims[near_mask]
-    f = 0.1 + 0.8 * config.sparsity
+    f = node_decay_fraction(config.sparsity)
     t_add = s_top - f * contrast
     # each frame's best look-alike: its most similar frame at least the gap away
     far_enough = dseq >= gap

@@ -10,11 +10,13 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Optional
 
 import numpy as np
 
 from controllers.config import NavigationConfig, Thresholds
 from descriptors.base import Descriptor, DescriptorError
+from maps.calibration import node_level_at
 from maps.graph import MapError
 from maps.store import LoadedMap
 from robot.episode.config import EpisodeConfig
@@ -74,19 +76,33 @@ def map_self_similarity(loaded_map: LoadedMap) -> float:
     return float(np.median(values)) if values.size else 1.0
 
 
+def band_floor(loaded_map: LoadedMap, reference_sparsity: Optional[float]) -> float:
+    """The lower edge of the thresholds' band: the similarity of two consecutive nodes of the
+    map's walkthrough built at ``reference_sparsity`` (its calibration statistics), so that maps
+    of one walkthrough at any spacing get the same thresholds; the map's own ``T_add_new_node``
+    when ``reference_sparsity`` is None, is the map's own sparsity, or the map has no statistics."""
+    own = float(loaded_map.thresholds.T_add_new_node)
+    stats = (loaded_map.calibration or {}).get("stats") or {}
+    if reference_sparsity is None or stats.get("sparsity") == reference_sparsity:
+        return own
+    level = node_level_at(stats, reference_sparsity)
+    return own if level is None else float(np.clip(level, -1.0, 1.0))
+
+
 def derive_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig, *,
                       thirds_contrast: bool = True) -> Thresholds:
     """The navigation thresholds derived from the map (the default; ``EpisodeConfig``).
 
     Two consecutive nodes score about ``T_add_new_node`` against each other (the mapper added a
-    node when the similarity to the last one fell below it), and a view taken at a node scores
-    about :func:`map_self_similarity` against it. ``Thresholds.from_map`` places ``t_milestone``,
+    node when the similarity to the last one fell below it; :func:`band_floor` takes the level of
+    the reference sparsity), and a view taken at a node scores about :func:`map_self_similarity`
+    against it. ``Thresholds.from_map`` places ``t_milestone``,
     ``t_change_node`` and ``t_lost`` as fractions of that band (``navigation.threshold_fractions``).
     ``t_limited_control`` is ``threshold_fractions.control_contrast`` when the voter sees contrast
     scores (``thirds_contrast``), else kept from ``navigation.thresholds``: the raw thirds' scale
     does not follow the map's node spacing.
     """
-    t_add = float(loaded_map.thresholds.T_add_new_node)
+    t_add = band_floor(loaded_map, navigation.threshold_fractions.reference_sparsity)
     self_sim = map_self_similarity(loaded_map)
     if not self_sim > t_add + 0.02:
         self_sim = min(1.0, t_add + 0.1)   # a degenerate log: keep a usable band above T_add_new_node
