@@ -285,11 +285,16 @@ class LocaliserConfig:
     #: robot is placed facing along its way, where the mapping drive's views were taken, and a
     #: turn shows walls the drive never faced, which match look-alikes elsewhere.
     belief_hold_ticks: int = 10
+    #: With ``from_belief``: the belief places the robot only once the search has turned at least
+    #: this far (degrees). Views a few ticks apart are one look, and one look can match a
+    #: look-alike; views all round agree only at the true place.
+    belief_min_turn_deg: float = 0.0
 
     def __post_init__(self) -> None:
         check_count("confirm_ticks", self.confirm_ticks, 1)
         check_choice("from_belief", self.from_belief, BELIEF_LOCALISATION)
         check_count("belief_hold_ticks", self.belief_hold_ticks, 0)
+        check_range("belief_min_turn_deg", self.belief_min_turn_deg, 0.0, 720.0, what="a number of degrees")
         check_count("relocalise_hops", self.relocalise_hops, 0)
         check_count("relocalise_heading_confirmations", self.relocalise_heading_confirmations, 1)
         check_range("relocalise_heading_tolerance_deg", self.relocalise_heading_tolerance_deg, 0.0, 180.0,

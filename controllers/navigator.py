@@ -460,7 +460,8 @@ class Navigator:
         tolerance = self.config.localiser.relocalise_heading_tolerance_deg
         facing = belief.facing_deg is None or abs(belief.facing_deg) <= tolerance
         reachable = self._state is NavState.LOCALISING or node in self._goal_reachers
-        if belief.confidence >= level and facing and reachable:
+        looked = abs(turned) >= math.radians(self.config.localiser.belief_min_turn_deg) - 1e-9
+        if belief.confidence >= level and facing and reachable and looked:
             where = "" if belief.facing_deg is None else ", facing along the route"
             return self._start(node, f"belief: node {node!r} holds {belief.confidence:.2f} of the mass "
                                      f"(>= {level:g}){where}", heading_rad)
@@ -468,7 +469,9 @@ class Navigator:
             return self._fail(f"the belief did not settle in {self._search_ticks} ticks (mode {node!r} with "
                               f"{belief.confidence:.2f} of the mass)", turned_rad=turned)
         why = ("not trusted yet" if belief.confidence < level else
-               "facing away from the route there" if not facing else "the goal is not reachable from it")
+               "facing away from the route there" if not facing else
+               "the goal is not reachable from it" if not reachable else
+               f"turned {math.degrees(abs(turned)):.0f} of {self.config.localiser.belief_min_turn_deg:g} deg")
         if self._search_ticks <= self.config.localiser.belief_hold_ticks:
             return self._step(Action.NONE, reason=f"belief: node {node!r} with {belief.confidence:.2f} of the mass, "
                                                   f"{why}; looking")

@@ -727,6 +727,26 @@ def test_the_belief_places_the_robot_once_trusted_and_facing_along_the_route():
         Navigator(graph, sorted(poses), 5, _belief_config("initial")).tick(view, heading_rad=0.0)
 
 
+def test_the_belief_places_the_robot_only_after_the_turn_it_asks_for():
+    from dataclasses import replace as _replace
+
+    graph, poses = chain(6)
+    config = _belief_config("initial", hold=0)
+    config = _replace(config, localiser=_replace(config.localiser, belief_min_turn_deg=90.0))
+    nav = Navigator(graph, sorted(poses), 5, config)
+    view = SyntheticPlaces(poses, seed=1).similarities(poses[0])
+    trusted = _snapshot(1, 0.95)
+    step = nav.tick(view, heading_rad=0.0, belief=trusted)     # one look, however sure: keep turning
+    assert step.action is Action.SEARCH_ROTATE and step.reason.endswith("turned 0 of 90 deg; turning")
+    for k in range(1, 31):                                     # 0.05 rad a tick: 86 deg after 30
+        step = nav.tick(view, heading_rad=0.05 * k, belief=trusted)
+        assert step.state is NavState.LOCALISING and step.action is Action.SEARCH_ROTATE
+    step = nav.tick(view, heading_rad=0.05 * 32, belief=trusted)
+    assert step.state is NavState.NAVIGATING and step.current_node == 1
+    with pytest.raises(ValueError, match="belief_min_turn_deg"):
+        _replace(config.localiser, belief_min_turn_deg=-1.0)
+
+
 def test_a_belief_that_never_settles_fails_after_the_search_budget():
     from dataclasses import replace as _replace
 
@@ -740,21 +760,26 @@ def test_a_belief_that_never_settles_fails_after_the_search_budget():
     assert "the belief did not settle in 20 ticks" in steps[19].reason
 
 
-def test_with_the_belief_the_robot_places_itself_and_drives_the_loop(loop):
+@pytest.mark.parametrize("min_turn_deg", [0.0, 360.0])
+def test_with_the_belief_the_robot_places_itself_and_drives_the_loop(loop, min_turn_deg):
     """Closed loop on the square: the belief (a real filter, fed the unicycle's odometry) places
-    the robot, which then drives to the goal across the loop closure."""
+    the robot, at once or after a full look round, which then drives to the goal across the
+    loop closure."""
+    from dataclasses import replace as _replace
+
     from controllers.belief import NodeBelief, SimilarityModel
 
     graph, poses = loop
     ids = sorted(poses)
     places = SyntheticPlaces(poses, seed=4)
     config = _belief_config("initial")
+    config = _replace(config, localiser=_replace(config.localiser, belief_min_turn_deg=min_turn_deg))
     lengths = {(a, b): poses[a].distance_to(poses[b]) or 0.1 for a, b in graph.edges}
     belief = NodeBelief(graph, ids, SimilarityModel(mean_same=3.0, mean_other=0.0, std=1.0), config=config.belief,
                         arc_lengths_m=lengths, node_headings={n: poses[n].yaw_rad for n in ids})
     goal = ids[len(ids) // 2]
     nav = Navigator(graph, ids, goal, config)
-    pose, last = offset(poses[ids[2]], forward_m=0.2), None
+    pose, last, nav_steps = offset(poses[ids[2]], forward_m=0.2), None, []
     for _ in range(3000):
         if last is not None:
             c, s = math.cos(last.yaw_rad), math.sin(last.yaw_rad)
@@ -763,11 +788,14 @@ def test_with_the_belief_the_robot_places_itself_and_drives_the_loop(loop):
         belief.observe(row)
         step = nav.tick(row, thirds=lambda node, pose=pose: places.thirds(pose, node), heading_rad=pose.yaw_rad,
                         belief=belief.snapshot())
+        nav_steps.append(step)
         if step.finished:
             break
         last, pose = pose, drive(pose, step.velocity, DT_S)
     assert nav.visited_nodes[0] in (ids[1], ids[2], ids[3])
     assert step.state is NavState.ARRIVED and pose.distance_to(poses[goal]) < 1.0
+    turned = sum(abs(s.velocity.w_radps) for s in nav_steps if s.state is NavState.LOCALISING) * DT_S
+    assert turned >= math.radians(min_turn_deg) - 0.05
 
 
 def test_the_published_method_relocalises_only_above_t_milestone():
