@@ -186,6 +186,14 @@ class SupervisorConfig:
     #: picture does: that picture was taken up to half an arc from the goal. False: the goal
     #: node's score alone decides arrival.
     goal_image_arrival: bool = True
+    #: Not in the paper. When the window has been below ``t_lost`` for ``lost_patience_ticks``
+    #: (the views match no node near the plan), the robot drives on by odometry instead of
+    #: re-localising: the target counts as reached once the robot has driven the arc's mapped
+    #: length from the current node, for at most this many metres since the last node
+    #: confirmed by its view. A moved prop can hide a stretch that the robot stands on; turning
+    #: to re-localise there found the same node again and again. 0: off (the map needs arc
+    #: lengths from a drive, and the run loop the distance driven).
+    odometry_max_m: float = 0.0
 
     def __post_init__(self) -> None:
         check_count("window_behind", self.window_behind, 0)
@@ -195,6 +203,7 @@ class SupervisorConfig:
         check_count("goal_settle_ticks", self.goal_settle_ticks, 0)
         check_bool("confirm_best_of_map", self.confirm_best_of_map)
         check_bool("goal_image_arrival", self.goal_image_arrival)
+        check_range("odometry_max_m", self.odometry_max_m, 0.0, 100.0, what="a distance in metres")
 
 
 #: the values of ``LocaliserConfig.from_belief``
@@ -564,7 +573,7 @@ class NavigationConfig:
                               relocalise_hops=0, relocalise_expected=False,
                               relocalise_heading_tolerance_deg=180.0, from_belief="off"),
             supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0,
-                               goal_image_arrival=False),
+                               goal_image_arrival=False, odometry_max_m=0.0),
             recovery=replace(self.recovery, enabled=False), turn_room=replace(self.turn_room, enabled=False),
             heading_guard=replace(self.heading_guard, enabled=False),
             hold_action_between_votes=False, blind_forward_ticks=0, heading_hints=False)

@@ -60,12 +60,21 @@ class HeadingGuard:
         return wrap_angle(float(heading_rad) - (self._headings[target] + float(offset_rad)))
 
     def hold(self, node: NodeId, heading_rad: Optional[float], offsets: Sequence[float]) -> Optional[tuple[Action, str]]:
-        """``(action, reason)`` that drives on along ``node``'s mapped heading (the final
-        approach, ``final_approach``), or None where the guard cannot tell (off, no heading, too
+        """``(action, reason)`` that drives on along ``node``'s mapped heading in the final
+        approach (``final_approach``), or None where the guard cannot tell (off, no heading, too
         few offsets)."""
+        if not self.config.final_approach:
+            return None
+        return self.along(node, heading_rad, offsets, "final approach")
+
+    def along(self, node: NodeId, heading_rad: Optional[float], offsets: Sequence[float],
+              what: str) -> Optional[tuple[Action, str]]:
+        """``(action, reason)`` that drives forward along ``node``'s mapped heading, correcting by
+        FORWARD_LEFT / FORWARD_RIGHT beyond ``final_tolerance_deg``; ``what`` names the purpose in
+        the reason. None where the guard cannot tell (off, no heading, too few offsets)."""
         cfg = self.config
         offsets = list(offsets)[-cfg.confirmations:]
-        if (not (cfg.enabled and cfg.final_approach) or heading_rad is None or node not in self._headings
+        if (not cfg.enabled or heading_rad is None or node not in self._headings
                 or len(offsets) < cfg.min_confirmations):
             return None
         error = self.error_rad(node, heading_rad, median_offset(offsets))
@@ -73,7 +82,7 @@ class HeadingGuard:
             action = Action.FORWARD
         else:
             action = Action.FORWARD_RIGHT if error > 0 else Action.FORWARD_LEFT
-        return action, (f"final approach along the map's heading at node {node!r}: facing "
+        return action, (f"{what} along the map's heading at node {node!r}: facing "
                         f"{math.degrees(error):+.0f} deg from it, {action.value}")
 
     def check(self, target: Optional[NodeId], heading_rad: Optional[float],

@@ -37,6 +37,10 @@ States (:class:`NavState`):
   ``release_deg`` before the voter steers again. In the final approach (the goal node
   confirmed, driving on until the goal is seen best) the guard holds the goal node's mapped
   heading instead of the votes (``heading_guard.final_approach``): the state stays NAVIGATING.
+* (driving on) while the supervisor drives on by odometry (``supervisor.odometry_max_m``: the
+  views match no node near the plan), the voter's navigator drives forward along the target
+  node's mapped heading (the heading guard's offsets), or straight on without them; the state
+  stays NAVIGATING (a search ends).
 * RECOVERING: stalled against a wall (``recovery``, off by default; the run loop's
   :class:`controllers.stall.StallMonitor` tells, passed as ``stalled``): backs straight off for
   ``recovery.backup_ticks``, then navigates on.
@@ -85,7 +89,8 @@ Transitions (:data:`TRANSITIONS`; the navigator refuses any other):
     TURNING       the supervisor reports the robot lost                RELOCALISING
     TURNING       the goal reached                                     ARRIVED
     TURNING       lost once more than ``max_relocalisations``          FAILED
-    SEARCHING     a third sees the target, or a node confirmed         NAVIGATING
+    SEARCHING     a third sees the target, a node confirmed, or        NAVIGATING
+                  driving on by odometry
     SEARCHING     stalled: turns commanded, the gyro saw none          RECOVERING
     SEARCHING     a full turn without it, or the supervisor's LOST     RELOCALISING
     SEARCHING     the goal reached                                     ARRIVED
@@ -222,13 +227,15 @@ class Navigator:
     of column ``j`` of every similarity row (every graph node needs a column). ``chooser``: what
     picks the actions while navigating (default: the two-cycle voter of ``config``,
     :class:`controllers.choosers.VoterChooser`; :class:`controllers.choosers.PolicyChooser` for a
-    learned policy passed to every :meth:`tick`).
+    learned policy passed to every :meth:`tick`). ``arc_lengths_m[(src, dst)]``: the arcs' mapped
+    lengths, for driving on by odometry (``supervisor.odometry_max_m``).
     """
 
     def __init__(self, graph: nx.DiGraph, node_ids: Sequence[NodeId], goal_node: NodeId,
                  config: NavigationConfig = NavigationConfig(),
                  node_headings: Optional[Mapping[NodeId, float]] = None,
-                 chooser: Optional[ActionChooser] = None):
+                 chooser: Optional[ActionChooser] = None,
+                 arc_lengths_m: Optional[Mapping[tuple, float]] = None):
         self.planner = GlobalPlanner(graph)
         self.node_ids = plain_node_ids(node_ids)
         if len(set(self.node_ids)) != len(self.node_ids):
@@ -291,6 +298,7 @@ class Navigator:
         self._corner_view = [-math.inf, 0, 0]
         self._turned_towards: Optional[NodeId] = None   # the target of the last corner turn made
         self._belief: Optional[BeliefSnapshot] = None   # this tick's belief over the map, if given
+        self._arcs = None if arc_lengths_m is None else dict(arc_lengths_m)
         self._backing = 0                         # ticks backed off in this recovery
         self._recoveries = 0
         # the way just driven, newest last: (action, velocity commanded); and the commands left
@@ -336,7 +344,8 @@ class Navigator:
              heading_rad: Optional[float] = None,
              thirds_contrast: Optional[np.ndarray] = None, policy: PolicyInput = None,
              belief: Optional[BeliefSnapshot] = None,
-             goal_score: Optional[float] = None, stalled: bool = False) -> NavigationStep:
+             goal_score: Optional[float] = None, stalled: bool = False,
+             travelled_m: Optional[float] = None) -> NavigationStep:
         """One control tick.
 
         ``similarities``: the current full view's cosine similarity to every node (column order
@@ -353,7 +362,9 @@ class Navigator:
         view's cosine similarity to the goal image, when the goal is an image: the final approach
         stops where the view matches it best (``supervisor.goal_image_arrival``). ``stalled``: the
         robot is pressed against a wall (:class:`controllers.stall.StallMonitor`); with
-        ``recovery.enabled`` it backs off.
+        ``recovery.enabled`` it backs off. ``travelled_m``: the distance the odometry has driven so
+        far (metres along the robot's heading, less when reversing), for driving on by odometry
+        where the views match nothing (``supervisor.odometry_max_m``).
         """
         try:
             row = similarity_row(similarities, len(self.node_ids), "similarities")
@@ -369,7 +380,7 @@ class Navigator:
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
         self._contrast = thirds_contrast
-        return self._navigate_tick(row, thirds, heading_rad, policy, goal_score, stalled)
+        return self._navigate_tick(row, thirds, heading_rad, policy, goal_score, stalled, travelled_m)
 
     # -- states ---------------------------------------------------------------------------
 
@@ -491,7 +502,7 @@ class Navigator:
             return self._fail(f"{reason}; {exc}")
         self._plans += 1
         self._plan = plan.nodes
-        self._supervisor = NodeSwitchSupervisor(plan.nodes, self.node_ids, self.config, self.filter)
+        self._supervisor = NodeSwitchSupervisor(plan.nodes, self.node_ids, self.config, self.filter, self._arcs)
         self.chooser.reset()
         self._enter(NavState.NAVIGATING)
         return self._step(Action.NONE, reason=f"{reason}; planned "
@@ -553,10 +564,11 @@ class Navigator:
 
     def _navigate_tick(self, row: np.ndarray, thirds: ThirdsInput,
                        heading_rad: Optional[float], policy: PolicyInput = None,
-                       goal_score: Optional[float] = None, stalled: bool = False) -> NavigationStep:
-        decision = self._supervisor.tick(row, goal_score=goal_score)
+                       goal_score: Optional[float] = None, stalled: bool = False,
+                       travelled_m: Optional[float] = None) -> NavigationStep:
+        decision = self._supervisor.tick(row, goal_score=goal_score, travelled_m=travelled_m)
         if decision.confirmed_node is not None:
-            self._confirmed(decision.confirmed_node, heading_rad)
+            self._confirmed(decision.confirmed_node, heading_rad, seen=not decision.by_odometry)
         if decision.state is SupervisorState.GOAL_REACHED:
             self._enter(NavState.ARRIVED)
             self._final = self._step(Action.STOP, decision=decision, reason=decision.reason)
@@ -586,6 +598,17 @@ class Navigator:
                 if hold is not None:
                     self.chooser.reset()          # it steers again only if the approach ends otherwise
                     return self._step(hold[0], decision, reason=f"{decision.reason}; {hold[1]}")
+
+        if decision.driving_on and self.chooser.uses_turn_hints:
+            # the views match nothing: no third can steer (nor find the target turning in place),
+            # the map's heading can
+            along = None if self._guard is None else self._guard.along(
+                decision.target_node, heading_rad, self._offsets, "driving on")
+            action, why = along if along is not None else (Action.FORWARD, "forward")
+            self.chooser.reset()
+            if self._state is NavState.SEARCHING:
+                self._enter(NavState.NAVIGATING)
+            return self._step(action, decision, reason=f"{decision.reason}; {why}")
 
         target = decision.target_node
         view = TargetView(target, lambda: self._thirds_for(target, thirds),
@@ -656,10 +679,11 @@ class Navigator:
                           reason=f"{why}: driving the way just driven backwards to turn in place "
                                  f"({len(self._retrace)} ticks to go)")
 
-    def _confirmed(self, node: NodeId, heading_rad: Optional[float]) -> None:
+    def _confirmed(self, node: NodeId, heading_rad: Optional[float], seen: bool = True) -> None:
         """The supervisor confirmed ``node`` by driving: the new anchor, a corner turn to check,
-        a new target for the chooser; a search or a corner turn is over."""
-        self._set_anchor(node, heading_rad)
+        a new target for the chooser; a search or a corner turn is over. A node reached by
+        odometry (not ``seen``) gives no heading offset: the robot is only about there."""
+        self._set_anchor(node, heading_rad if seen else None)
         self._hint = None if heading_rad is None else (node, float(heading_rad))
         self._corner_view = [-math.inf, 0, 0]
         self._remember(node)

@@ -33,6 +33,13 @@ Additions, each for a failure seen in practice:
   of this one) for ``lost_patience_ticks`` ticks, or no node is confirmed for
   ``progress_patience_ticks`` ticks, the state is LOST (final for this supervisor): the caller must re-localise globally
   and re-plan, then build a new supervisor (passing the same filter keeps its state).
+* **Driving on by odometry** (``odometry_max_m``, with the map's arc lengths and the distance
+  driven passed to :meth:`NodeSwitchSupervisor.tick`). When the window has been below
+  ``t_lost`` for the lost patience, the robot is not declared lost while it has driven less
+  than ``odometry_max_m`` since the last node its view confirmed: the target is confirmed by
+  odometry once the robot has driven the arc's mapped length from the current node (the goal
+  never is: arrival needs its view). Views of a stretch a moved prop changed match nothing;
+  re-localising there found the same node again and again and gave up.
 
 GOAL_REACHED and LOST are final: later ticks still update the filter but repeat the final
 decision (with ``confirmed_node`` None).
@@ -41,8 +48,9 @@ decision (with ``confirmed_node`` None).
 from __future__ import annotations
 
 import enum
+import math
 from dataclasses import dataclass, replace
-from typing import Hashable, Optional, Sequence, Tuple
+from typing import Hashable, Mapping, Optional, Sequence, Tuple
 
 import numpy as np
 
@@ -78,6 +86,8 @@ class SupervisorDecision:
     lost_ticks: int                        # consecutive ticks with the window below t_lost
     reason: str
     goal_image_score: Optional[float] = None   # filtered similarity to the goal image (image goals)
+    driving_on: bool = False               # the views match nothing: driving on by odometry
+    by_odometry: bool = False              # confirmed_node was reached by odometry, not by its view
 
     @property
     def relocalise(self) -> bool:
@@ -99,11 +109,14 @@ class NodeSwitchSupervisor:
 
     ``node_ids[j]`` names the node of column ``j`` of every similarity row. The path starts at
     a node the caller has already localised (the current node at construction).
+    ``arc_lengths_m[(src, dst)]``: the mapped length of the path's arcs (metres), for driving
+    on by odometry (``supervisor.odometry_max_m``); None: a map without them.
     """
 
     def __init__(self, path: Sequence[NodeId], node_ids: Sequence[NodeId],
                  config: NavigationConfig = NavigationConfig(),
-                 similarity_filter: Optional[SimilarityFilter] = None):
+                 similarity_filter: Optional[SimilarityFilter] = None,
+                 arc_lengths_m: Optional[Mapping[tuple, float]] = None):
         if len(path) == 0:
             raise ValueError("the path must hold at least one node")
         self.node_ids = plain_node_ids(node_ids)
@@ -135,6 +148,11 @@ class NodeSwitchSupervisor:
         # why the goal node's score, and the goal image's, said the robot is there ("": not yet)
         self._node_settled = ""
         self._image_settled = ""
+        self._arcs = arc_lengths_m
+        # odometry distance driven when the current node was confirmed, and when a node was last
+        # confirmed by its view (driving on by odometry); None until the first distance arrives
+        self._at_node_m: Optional[float] = None
+        self._at_sight_m: Optional[float] = None
 
     @property
     def index(self) -> int:
@@ -163,12 +181,20 @@ class NodeSwitchSupervisor:
         return range(max(0, self._index - cfg.window_behind),
                      min(last, self._index + cfg.window_ahead) + 1)
 
-    def tick(self, similarities: np.ndarray, goal_score: Optional[float] = None) -> SupervisorDecision:
+    def tick(self, similarities: np.ndarray, goal_score: Optional[float] = None,
+             travelled_m: Optional[float] = None) -> SupervisorDecision:
         """Filter one similarity row (current view against every node) and decide.
 
         ``goal_score``: the view's similarity to the goal image, when the goal is an image (see
-        :meth:`_image_arrival`)."""
+        :meth:`_image_arrival`). ``travelled_m``: the distance the odometry has driven so far
+        (metres along the robot's heading, less when reversing; any fixed origin), for driving
+        on by odometry."""
         row = similarity_row(similarities, len(self.node_ids))
+        if travelled_m is not None:
+            if not math.isfinite(travelled_m):
+                raise ValueError(f"travelled_m must be finite, got {travelled_m!r}")
+            if self._at_node_m is None:
+                self._at_node_m = self._at_sight_m = float(travelled_m)
         filtered = self.filter.update(row)
         if goal_score is not None and self.config.supervisor.goal_image_arrival:
             score = float(goal_score)
@@ -198,6 +224,8 @@ class NodeSwitchSupervisor:
             confirmed = self.path[ahead]
             self._index, self._state = ahead, SupervisorState.LEAVING
             self._ticks_since_progress = 0
+            if travelled_m is not None:
+                self._at_node_m = self._at_sight_m = float(travelled_m)
             score = float(path_scores[ahead])
             reason = (f"reached node {confirmed!r}: filtered {score:.3f} > t_milestone "
                       f"{thresholds.t_milestone:.3f}" if score > thresholds.t_milestone else
@@ -226,9 +254,15 @@ class NodeSwitchSupervisor:
         self._lost_ticks = self._lost_ticks + 1 if (best < thresholds.t_lost and elsewhere) else 0
         cfg = self.config.supervisor
         if self._lost_ticks >= cfg.lost_patience_ticks:
-            return self._finish(SupervisorState.LOST, path_scores, confirmed,
-                                f"lost: best filtered score in the window {best:.3f} < t_lost "
-                                f"{thresholds.t_lost:.3f} for {self._lost_ticks} ticks")
+            why = f"best filtered score in the window {best:.3f} < t_lost {thresholds.t_lost:.3f} for " \
+                  f"{self._lost_ticks} ticks"
+            on = self._drive_on(path_scores, confirmed, travelled_m, why)
+            if on is not None:
+                return on
+            return self._finish(SupervisorState.LOST, path_scores, confirmed, f"lost: {why}" + (
+                "" if not self._odometry_on(travelled_m) else
+                f"; drove {travelled_m - self._at_sight_m:.2f} m since the last node seen "
+                f"(odometry_max_m {cfg.odometry_max_m:g})"))
         if self._ticks_since_progress >= cfg.progress_patience_ticks:
             return self._finish(SupervisorState.LOST, path_scores, confirmed,
                                 f"lost: no node confirmed for {self._ticks_since_progress} ticks")
@@ -237,6 +271,42 @@ class NodeSwitchSupervisor:
             reason = (f"{self._state.value} {self.path[self._index]!r} -> {target!r}: filtered "
                       f"{here:.3f} / {path_scores[self._index + 1]:.3f}")
         return self._decision(self._state, path_scores, confirmed, reason)
+
+    def _odometry_on(self, travelled_m: Optional[float]) -> bool:
+        """Whether this tick may drive on by odometry (the setting, the distance, arc lengths)."""
+        return (self.config.supervisor.odometry_max_m > 0 and travelled_m is not None and self._arcs is not None
+                and self._at_node_m is not None)
+
+    def _drive_on(self, path_scores: np.ndarray, confirmed: Optional[NodeId], travelled_m: Optional[float],
+                  why: str) -> Optional[SupervisorDecision]:
+        """The decision of driving on by odometry while the window matches nothing (see the module
+        docstring), or None: lost."""
+        if not self._odometry_on(travelled_m) or confirmed is not None:
+            return None
+        limit = self.config.supervisor.odometry_max_m
+        blind = travelled_m - self._at_sight_m
+        target = self.target_node
+        arc = self._arcs.get((self.path[self._index], target))
+        if arc is None or not arc > 0:
+            return None
+        driven = travelled_m - self._at_node_m
+        # the budget counts to where the map puts a node, not to the tick that finds it passed
+        within = self._at_node_m + arc - self._at_sight_m <= limit
+        if driven >= arc and within and self._index + 1 < len(self.path) - 1:   # the goal needs its view
+            self._index, self._state = self._index + 1, SupervisorState.LEAVING
+            self._at_node_m += arc
+            self._ticks_since_progress = 0
+            return replace(self._decision(self._state, path_scores, target,
+                                          f"{why}; reached node {target!r} by odometry: drove {driven:.2f} m of "
+                                          f"its {arc:.2f} m arc ({blind:.2f} of {limit:g} m since the last node "
+                                          "seen)"),
+                           driving_on=True, by_odometry=True)
+        if driven >= arc or blind > limit:
+            return None
+        return replace(self._decision(self._state, path_scores, None,
+                                      f"{why}; driving on by odometry: {driven:.2f} of {arc:.2f} m to node "
+                                      f"{target!r} ({blind:.2f} of {limit:g} m since the last node seen)"),
+                       driving_on=True)
 
     def _settle_at_goal(self, path_scores: np.ndarray) -> SupervisorDecision:
         """The goal passed its confirmation; arrive once its filtered score stops improving.

@@ -134,6 +134,15 @@ class TopoMap:
         """All arcs, sorted by (src, dst)."""
         return [self.arc(u, v) for u, v in sorted(self._g.edges())]
 
+    @property
+    def arc_lengths_m(self) -> Optional[dict[tuple[int, int], float]]:
+        """``(src, dst)`` -> the arc's driven length (metres) when every arc has a positive one (a
+        map from a drive), else None (a video or an image folder: node units only)."""
+        lengths = {(a.src, a.dst): a.length_m for a in self.arcs()}
+        if not lengths or not all(v is not None and v > 0 for v in lengths.values()):
+            return None
+        return lengths
+
     def descriptor(self, node_id: int) -> np.ndarray:
         return self.descriptors[self.node(node_id).row]
 

@@ -892,3 +892,43 @@ def test_the_final_approach_holds_the_goal_nodes_mapped_heading(loop):
     assert not any("final approach" in s.reason for s in plain.steps)
     with pytest.raises(ValueError, match="final_tolerance_deg"):
         HeadingGuardConfig(final_tolerance_deg=-1.0)
+
+
+def _views_lost_on_a_chain(arc_lengths_m, ticks: int = 300) -> list:
+    """Chain 0 -> ... -> 9 mapped facing 0 rad, localised at node 0 facing along it; then, facing
+    0.2 rad to the left, the views match nothing near the plan (a far node a little) while the
+    odometry counts the distance of every command. The steps after the localisation."""
+    graph, _ = chain(10)
+    config = NavigationConfig(supervisor=replace(CONFIG.supervisor, odometry_max_m=3.0),
+                              heading_guard=HeadingGuardConfig(min_confirmations=1))
+    nav = Navigator(graph, list(range(10)), 9, config, node_headings={k: 0.0 for k in range(10)},
+                    arc_lengths_m=arc_lengths_m)
+    at_0, blind = np.full(10, 0.1), np.full(10, 0.2)
+    at_0[0], blind[9] = 0.9, 0.3
+    heading, travelled = 0.0, 0.0
+    while nav.state is NavState.LOCALISING:
+        nav.tick(at_0, heading_rad=heading, travelled_m=travelled)
+    heading, steps = 0.2, []
+    for _ in range(ticks):
+        step = nav.tick(blind, thirds=lambda node: (0.2, 0.2, 0.2), heading_rad=heading, travelled_m=travelled)
+        steps.append(step)
+        heading += step.velocity.w_radps * DT_S
+        travelled += step.velocity.v_mps * DT_S
+        if step.state is NavState.RELOCALISING:
+            break
+    return steps
+
+
+def test_where_the_views_match_nothing_the_robot_drives_on_along_the_maps_heading():
+    steps = _views_lost_on_a_chain({(k, k + 1): 1.0 for k in range(9)})
+    on = [s for s in steps if s.supervisor is not None and s.supervisor.driving_on]
+    assert on and all(s.state is NavState.NAVIGATING for s in on)
+    # facing 11 deg left of the route: forward, bearing right, back onto the map's heading
+    assert on[0].action is Action.FORWARD_RIGHT and "driving on along the map's heading" in on[0].reason
+    assert {s.action for s in on} <= {Action.FORWARD, Action.FORWARD_RIGHT} and Action.FORWARD in {s.action for s in on}
+    # nodes 1, 2, 3 passed by odometry (3 m since node 0), then lost
+    assert steps[-1].visited_nodes == (0, 1, 2, 3) and steps[-1].state is NavState.RELOCALISING
+    # a map without arc lengths (from a video): lost as soon as the patience runs out
+    plain = _views_lost_on_a_chain(None)
+    assert not any(s.supervisor is not None and s.supervisor.driving_on for s in plain)
+    assert plain[-1].state is NavState.RELOCALISING and len(plain) < len(steps) and plain[-1].visited_nodes == (0,)

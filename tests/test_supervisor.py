@@ -359,3 +359,79 @@ def test_a_goal_score_that_is_not_finite_is_refused():
     sup = _at_the_node_before_the_goal()
     with pytest.raises(ValueError, match="goal_score must be finite"):
         sup.tick(row(5, n2=0.5), goal_score=float("nan"))
+
+
+# -- driving on by odometry (supervisor.odometry_max_m) ------------------------------------------
+
+ODOMETRY = NavigationConfig(supervisor=SupervisorConfig(confirm_best_of_map=False, goal_settle_ticks=0,
+                                                        odometry_max_m=3.0))
+ARCS_1M = {(k, k + 1): 1.0 for k in range(9)}
+
+
+def _blind(n: int, far: int) -> np.ndarray:
+    """A view of a stretch a moved prop changed: nothing near the plan matches, a far node a little."""
+    return row(n, base=0.2, **{f"n{far}": 0.3})
+
+
+def _drive(sup, rows, start_m=0.0, step_m=0.025):
+    """Tick ``rows`` while the odometry drives ``step_m`` per tick (0.25 m/s at 10 Hz)."""
+    return [sup.tick(r, travelled_m=start_m + step_m * k) for k, r in enumerate(rows)]
+
+
+def test_where_the_views_match_nothing_the_robot_drives_on_by_odometry_then_is_lost():
+    n = 10
+    sup = NodeSwitchSupervisor(range(n), range(n), ODOMETRY, arc_lengths_m=ARCS_1M)
+    decisions = _drive(sup, [_blind(n, far=9)] * 200)
+    passed = [(k, d.confirmed_node) for k, d in enumerate(decisions) if d.confirmed_node is not None]
+    # nodes 1, 2, 3 reached by odometry, each once the arc's metre is driven from the one before
+    assert [node for _, node in passed] == [1, 2, 3]
+    assert all(decisions[k].by_odometry and "by odometry" in decisions[k].reason for k, _ in passed)
+    assert [round(0.025 * k, 2) for k, _ in passed] == [1.0, 2.0, 3.0]
+    # driving on while the patience has run out, not before; then lost past 3 m since node 0
+    first_on = next(k for k, d in enumerate(decisions) if d.driving_on)
+    assert first_on + 1 >= ODOMETRY.supervisor.lost_patience_ticks      # ticks counted from 1
+    lost = next(k for k, d in enumerate(decisions) if d.state is SupervisorState.LOST)
+    assert 0.025 * lost > 3.0 and all(d.driving_on for d in decisions[first_on:lost])
+    assert "since the last node seen" in decisions[lost].reason and not decisions[lost].driving_on
+
+
+def test_a_node_seen_again_ends_the_drive_on_and_renews_its_budget():
+    n = 10
+    sup = NodeSwitchSupervisor(range(n), range(n), ODOMETRY, arc_lengths_m=ARCS_1M)
+    rows = [_blind(n, far=9)] * 50 + [row(n, n2=0.9)] * 40 + [_blind(n, far=9)] * 200
+    decisions = _drive(sup, rows)
+    seen = [d for d in decisions if d.confirmed_node is not None and not d.by_odometry]
+    assert [d.confirmed_node for d in seen] == [2]
+    reached = [d.confirmed_node for d in decisions if d.by_odometry]
+    assert reached[0] == 1 and 3 in reached and 4 in reached       # 3 m more after node 2 was seen
+    assert any(d.state is SupervisorState.LOST for d in decisions)
+
+
+def test_the_goal_is_never_reached_by_odometry():
+    sup = NodeSwitchSupervisor([0, 1, 2], range(4), ODOMETRY, arc_lengths_m=ARCS_1M)
+    decisions = _drive(sup, [_blind(4, far=3)] * 150)
+    assert [d.confirmed_node for d in decisions if d.confirmed_node is not None] == [1]
+    assert decisions[-1].state is SupervisorState.LOST
+    assert all(d.state is not SupervisorState.GOAL_REACHED for d in decisions)
+
+
+@pytest.mark.parametrize("case", ["off", "no distance", "no arc lengths", "published"])
+def test_without_the_setting_the_distance_or_arc_lengths_the_robot_is_lost_as_before(case):
+    n = 10
+    config = {"off": NavigationConfig(supervisor=replace(ODOMETRY.supervisor, odometry_max_m=0.0)),
+              "published": ODOMETRY.as_published()}.get(case, ODOMETRY)
+    sup = NodeSwitchSupervisor(range(n), range(n), config, arc_lengths_m=None if case == "no arc lengths" else ARCS_1M)
+    rows = [_blind(n, far=9)] * 60
+    decisions = feed(sup, rows) if case == "no distance" else _drive(sup, rows)
+    assert not any(d.driving_on or d.confirmed_node is not None for d in decisions)
+    lost = next(k for k, d in enumerate(decisions) if d.state is SupervisorState.LOST)
+    assert lost < 40 and "since the last node seen" not in decisions[lost].reason
+
+
+def test_a_distance_that_is_not_finite_and_a_bad_limit_are_refused():
+    sup = NodeSwitchSupervisor([0, 1, 2], range(3), ODOMETRY, arc_lengths_m=ARCS_1M)
+    with pytest.raises(ValueError, match="travelled_m"):
+        sup.tick(row(3, n0=0.9), travelled_m=float("nan"))
+    for bad in (-1.0, float("inf"), "3"):
+        with pytest.raises(ValueError, match="odometry_max_m"):
+            SupervisorConfig(odometry_max_m=bad)

@@ -35,15 +35,14 @@ def map_belief(topomap: TopoMap, config: BeliefConfig) -> tuple[Optional[NodeBel
                                                 smoothing_hops=config.smoothing_hops)
     except LikelihoodError as exc:
         return None, f"no belief: {exc}"
-    arcs = topomap.arcs()
-    lengths = {(a.src, a.dst): a.length_m for a in arcs}
-    metric = bool(arcs) and all(v is not None and v > 0 for v in lengths.values())
+    lengths = topomap.arc_lengths_m
+    metric = lengths is not None
     headings = topomap.odom_headings
     directions = ""
     if config.heading_bins > 1 and headings is None:
         config = replace(config, heading_bins=1)
         directions = " (no directions: the map has no node headings)"
-    belief = NodeBelief(topomap.graph, node_ids, model, config=config, arc_lengths_m=lengths if metric else None,
+    belief = NodeBelief(topomap.graph, node_ids, model, config=config, arc_lengths_m=lengths,
                         node_headings=headings)
     unit = f"{belief.n_cells} cells of {config.cell_m:g} m" if metric else f"{belief.n_cells} cells in node units"
     if belief.bins > 1:

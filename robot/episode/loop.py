@@ -9,7 +9,8 @@ HAL-agnostic: the same loop runs the simulated Limo and the serial Limo. Every c
     belief.move(odometry motion); belief.observe(row)    # the belief over the map
     step = navigator.tick(row, thirds=thirds, thirds_contrast=contrast_thirds(thirds), heading_rad=yaw,
                           belief=belief.snapshot(),       # it places the robot with localiser.from_belief
-                          goal_score=goal_descriptor @ x[0])   # image goals: the final approach
+                          goal_score=goal_descriptor @ x[0],   # image goals: the final approach
+                          travelled_m=odometry distance so far)  # driving on where the views match nothing
     base.apply(step.velocity); base.tick()
 
 and it stops when the navigator declares arrival or failure, the step budget runs out, the base
@@ -44,7 +45,7 @@ from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
 from descriptors.base import Descriptor
 from maps.graph import TopoMap
-from robot.episode.belief import BeliefTracker, map_belief
+from robot.episode.belief import BeliefTracker, OdometryMotion, map_belief
 
 
 @dataclass(frozen=True)
@@ -158,6 +159,21 @@ class _Heading:
         return self._yaw
 
 
+class _Distance:
+    """The distance the odometry has driven so far (metres along the heading, less when
+    reversing), or None while the base gives no odometry."""
+
+    def __init__(self) -> None:
+        self._motion = OdometryMotion()
+        self._m = 0.0
+
+    def update(self, frame: SensorFrame) -> Optional[float]:
+        if frame.odometry is None:
+            return None
+        self._m += self._motion.update(frame.odometry)[0]
+        return self._m
+
+
 class _Stall:
     """The stall monitor fed from the frames: the yaw rate applied over each period against the
     gyro's (:class:`controllers.stall.StallMonitor`), watched only while the robot drives."""
@@ -219,7 +235,9 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         config = replace(config, localiser=replace(config.localiser, from_belief="off"))
         belief_setup += "; the robot places itself by the thresholded match instead (localiser.from_belief off)"
     navigator = Navigator(topomap.graph, node_ids, goal_node, config, node_headings=topomap.odom_headings,
-                          chooser=None if action_policy is None else PolicyChooser())
+                          chooser=None if action_policy is None else PolicyChooser(),
+                          arc_lengths_m=topomap.arc_lengths_m)
+    distance = _Distance()
     heading = _Heading()
     stall = _Stall(config) if config.recovery.enabled else None
     tracker = None if belief is None else BeliefTracker(belief)
@@ -258,7 +276,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             step = navigator.tick(similarities, thirds=thirds,
                                   thirds_contrast=contrast_thirds(thirds) if thirds_contrast else None,
                                   heading_rad=heading.update(frame), policy=policy, belief=snapshot,
-                                  goal_score=goal_score, stalled=stall.update(frame) if stall else False)
+                                  goal_score=goal_score, stalled=stall.update(frame) if stall else False,
+                                  travelled_m=distance.update(frame))
             applied = base.apply(step.velocity)
             if stall is not None:
                 stall.applied(applied, driving=step.state in DRIVING_STATES)
