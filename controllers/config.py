@@ -298,9 +298,18 @@ class LocaliserConfig:
     #: this far (degrees). Views a few ticks apart are one look, and one look can match a
     #: look-alike; views all round agree only at the true place.
     belief_min_turn_deg: float = 0.0
+    #: Not in the paper; needs the map's odometry headings. After a full look round places the
+    #: robot (``from_belief``, ``belief_min_turn_deg`` 360), the map-to-odometry heading offset is
+    #: where the placed node and its neighbours within one arc matched best during the turn
+    #: (:mod:`controllers.compass`, each node's similarity smoothed over the heading with a kernel
+    #: of this many degrees), not the heading the robot faced when placed; it stands for the
+    #: episode (the heading comes from the gyro). 0: the placed heading and the confirmations.
+    compass_bandwidth_deg: float = 0.0
 
     def __post_init__(self) -> None:
         check_count("confirm_ticks", self.confirm_ticks, 1)
+        check_range("compass_bandwidth_deg", self.compass_bandwidth_deg, 0.0, 180.0, high_open=True,
+                    what="a number of degrees")
         check_choice("from_belief", self.from_belief, BELIEF_LOCALISATION)
         check_count("belief_hold_ticks", self.belief_hold_ticks, 0)
         check_range("belief_min_turn_deg", self.belief_min_turn_deg, 0.0, 720.0, what="a number of degrees")
@@ -571,7 +580,8 @@ class NavigationConfig:
             localiser=replace(self.localiser, min_margin=0.0, goal_image_margin=0.0, second_look=False,
                               first_view=False,
                               relocalise_hops=0, relocalise_expected=False,
-                              relocalise_heading_tolerance_deg=180.0, from_belief="off"),
+                              relocalise_heading_tolerance_deg=180.0, from_belief="off",
+                              compass_bandwidth_deg=0.0),
             supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0,
                                goal_image_arrival=False, odometry_max_m=0.0),
             recovery=replace(self.recovery, enabled=False), turn_room=replace(self.turn_room, enabled=False),

@@ -5,7 +5,9 @@ route runs there. Odometry headings of two drives differ by a constant offset (t
 plus slow drift, so the offset measured at the nodes the robot confirmed (odometry heading then
 minus the map's heading there) turns a node's mapped heading into the heading the robot's own
 odometry should read when it faces along the route at that node. A single confirmation is off by
-however the robot was angled when it confirmed; the median over several is not.
+however the robot was angled when it confirmed; the median over several is less so
+(:meth:`HeadingGuard.offset`), and a full look round measures it better still
+(:mod:`controllers.compass`): the navigator passes whichever it has.
 
 :class:`HeadingGuard` compares the robot's heading with the target node's mapped heading and,
 past ``max_error_deg``, asks to turn back (LEFT / RIGHT, which creep forward) until the error is
@@ -59,25 +61,29 @@ class HeadingGuard:
         """How far the robot faces from the target's mapped heading (positive: to its left)."""
         return wrap_angle(float(heading_rad) - (self._headings[target] + float(offset_rad)))
 
-    def hold(self, node: NodeId, heading_rad: Optional[float], offsets: Sequence[float]) -> Optional[tuple[Action, str]]:
+    def offset(self, offsets: Sequence[float]) -> Optional[float]:
+        """The map-to-odometry heading offset from those measured at confirmations (newest last):
+        the median of the last ``confirmations``, None with fewer than ``min_confirmations``."""
+        offsets = list(offsets)[-self.config.confirmations:]
+        return median_offset(offsets) if len(offsets) >= self.config.min_confirmations else None
+
+    def hold(self, node: NodeId, heading_rad: Optional[float], offset: Optional[float]) -> Optional[tuple[Action, str]]:
         """``(action, reason)`` that drives on along ``node``'s mapped heading in the final
-        approach (``final_approach``), or None where the guard cannot tell (off, no heading, too
-        few offsets)."""
+        approach (``final_approach``), or None where the guard cannot tell (off, no heading, no
+        offset)."""
         if not self.config.final_approach:
             return None
-        return self.along(node, heading_rad, offsets, "final approach")
+        return self.along(node, heading_rad, offset, "final approach")
 
-    def along(self, node: NodeId, heading_rad: Optional[float], offsets: Sequence[float],
+    def along(self, node: NodeId, heading_rad: Optional[float], offset: Optional[float],
               what: str) -> Optional[tuple[Action, str]]:
         """``(action, reason)`` that drives forward along ``node``'s mapped heading, correcting by
         FORWARD_LEFT / FORWARD_RIGHT beyond ``final_tolerance_deg``; ``what`` names the purpose in
-        the reason. None where the guard cannot tell (off, no heading, too few offsets)."""
+        the reason. None where the guard cannot tell (off, no heading, no offset)."""
         cfg = self.config
-        offsets = list(offsets)[-cfg.confirmations:]
-        if (not cfg.enabled or heading_rad is None or node not in self._headings
-                or len(offsets) < cfg.min_confirmations):
+        if not cfg.enabled or heading_rad is None or node not in self._headings or offset is None:
             return None
-        error = self.error_rad(node, heading_rad, median_offset(offsets))
+        error = self.error_rad(node, heading_rad, offset)
         if abs(error) <= math.radians(cfg.final_tolerance_deg):
             action = Action.FORWARD
         else:
@@ -86,17 +92,16 @@ class HeadingGuard:
                         f"{math.degrees(error):+.0f} deg from it, {action.value}")
 
     def check(self, target: Optional[NodeId], heading_rad: Optional[float],
-              offsets: Sequence[float]) -> Optional[tuple[Action, str]]:
+              offset: Optional[float]) -> Optional[tuple[Action, str]]:
         """``(action, reason)`` while the robot must turn back towards the target's mapped heading,
-        else None. ``offsets``: the map-to-odometry heading offsets measured so far, newest last
-        (the last ``confirmations`` count)."""
+        else None. ``offset``: the map-to-odometry heading offset (:meth:`offset`, or a look's),
+        None while unknown."""
         cfg = self.config
-        offsets = list(offsets)[-cfg.confirmations:]
         if (not cfg.enabled or target is None or heading_rad is None or target not in self._headings
-                or len(offsets) < cfg.min_confirmations):
+                or offset is None):
             self._active = False
             return None
-        error = self.error_rad(target, heading_rad, median_offset(offsets))
+        error = self.error_rad(target, heading_rad, offset)
         limit = math.radians(cfg.release_deg if self._active else cfg.max_error_deg)
         self._active = abs(error) > limit
         if not self._active:

@@ -33,8 +33,9 @@ States (:class:`NavState`):
   odometry heading) before the voter steers again: at corners the target is beside the field
   of view. Also the heading guard's turn (``heading_guard``, :mod:`controllers.heading_guard`):
   facing more than ``max_error_deg`` from the target node's mapped heading (through the
-  map-to-odometry offset measured at the nodes confirmed), the robot turns back to within
-  ``release_deg`` before the voter steers again. In the final approach (the goal node
+  map-to-odometry offset measured at the nodes confirmed, or by the first look round with
+  ``localiser.compass_bandwidth_deg``), the robot turns back to within ``release_deg`` before
+  the voter steers again. In the final approach (the goal node
   confirmed, driving on until the goal is seen best) the guard holds the goal node's mapped
   heading instead of the votes (``heading_guard.final_approach``): the state stays NAVIGATING.
 * (driving on) while the supervisor drives on by odometry (``supervisor.odometry_max_m``: the
@@ -60,8 +61,8 @@ States (:class:`NavState`):
   plan's stretch). With ``node_headings``, a node of the local search counts only while the
   robot faces (by odometry) the way the mapping drive faced there, to within
   ``localiser.relocalise_heading_tolerance_deg``: the map-to-odometry heading offset is the
-  median of those at the last ``localiser.relocalise_heading_confirmations`` confirmations (1:
-  the anchor's alone).
+  first look round's (``localiser.compass_bandwidth_deg``), else the median of those at the
+  last ``localiser.relocalise_heading_confirmations`` confirmations (1: the anchor's alone).
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero. With a
   goal image (``goal_score`` passed to :meth:`Navigator.tick`) and
   ``supervisor.goal_image_arrival``, the settle after the goal node's confirmation stops
@@ -127,6 +128,7 @@ import numpy as np
 from controllers.actions import Action, action_velocity
 from controllers.belief import BeliefSnapshot
 from controllers.choosers import ActionChooser, ChooserInputError, PolicyChooser, TargetView, VoterChooser
+from controllers.compass import LookCompass
 from controllers.config import NavigationConfig
 from controllers.heading_guard import HeadingGuard, median_offset
 from controllers.localisation import (
@@ -292,6 +294,11 @@ class Navigator:
         self._offsets: collections.deque = collections.deque(
             maxlen=max(self.config.localiser.relocalise_heading_confirmations, self.config.heading_guard.confirmations))
         self._guard = None if self._headings is None else HeadingGuard(self.config.heading_guard, self._headings)
+        bandwidth = self.config.localiser.compass_bandwidth_deg
+        # the first look round's views, for the heading offset (``localiser.compass_bandwidth_deg``)
+        self._compass = (LookCompass(math.radians(bandwidth)) if self._headings is not None and bandwidth > 0
+                         else None)
+        self._look_offset: Optional[float] = None   # the offset the look measured, for the episode
         self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
         self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
         # the corner node's view on the way to it: [best filtered score, ticks, ticks since the best]
@@ -433,7 +440,7 @@ class Navigator:
         if self._retrace:
             return self._clear(f"re-localisation {self._relocalisations}")
         if self._by_belief():
-            return self._localise_by_belief(heading_rad)
+            return self._localise_by_belief(row, heading_rad)
         if self._state is NavState.RELOCALISING:
             # A re-localisation only accepts nodes from which the goal can still be reached:
             # the robot was on its way there, so a node with no arc chain to the goal is a
@@ -458,7 +465,7 @@ class Navigator:
             return self._step(result.action, reason=result.reason, turned_rad=result.turned_rad)
         return self._start(result.node, result.reason, heading_rad)
 
-    def _localise_by_belief(self, heading_rad: Optional[float]) -> NavigationStep:
+    def _localise_by_belief(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         """Look for ``belief_hold_ticks``, then turn in place (the belief keeps each view with the
         heading it was taken at), until the belief's mode is trusted and the robot faces along the
         route there; see ``from_belief``."""
@@ -467,6 +474,8 @@ class Navigator:
             raise NavigationInputError("localiser.from_belief needs the belief over the map every tick (belief=)")
         turned = self._search.update(heading_rad)
         self._search_ticks += 1
+        if self._compass is not None and self._state is NavState.LOCALISING:
+            self._compass.add(heading_rad, row)
         node, level = belief.mode, self.config.belief.confidence
         tolerance = self.config.localiser.relocalise_heading_tolerance_deg
         facing = belief.facing_deg is None or abs(belief.facing_deg) <= tolerance
@@ -474,8 +483,9 @@ class Navigator:
         looked = abs(turned) >= math.radians(self.config.localiser.belief_min_turn_deg) - 1e-9
         if belief.confidence >= level and facing and reachable and looked:
             where = "" if belief.facing_deg is None else ", facing along the route"
+            compass = self._measure_offset(node, turned)
             return self._start(node, f"belief: node {node!r} holds {belief.confidence:.2f} of the mass "
-                                     f"(>= {level:g}){where}", heading_rad)
+                                     f"(>= {level:g}){where}{compass}", heading_rad)
         if self._search_ticks >= self.config.localiser.max_search_ticks:
             return self._fail(f"the belief did not settle in {self._search_ticks} ticks (mode {node!r} with "
                               f"{belief.confidence:.2f} of the mass)", turned_rad=turned)
@@ -488,6 +498,19 @@ class Navigator:
                                                   f"{why}; looking")
         return self._step(Action.SEARCH_ROTATE, turned_rad=turned,
                           reason=f"belief: node {node!r} with {belief.confidence:.2f} of the mass, {why}; turning")
+
+    def _measure_offset(self, node: NodeId, turned_rad: float) -> str:
+        """After a full look round, the heading offset from where ``node`` and its neighbours
+        matched best (:mod:`controllers.compass`); the words for the reason."""
+        if self._compass is None or abs(turned_rad) < 2.0 * math.pi - 1e-9:
+            return ""
+        near = [node] + sorted((n for n in self._undirected.neighbors(node) if n != node), key=repr)
+        columns = [self._column[n] for n in near]
+        self._look_offset = self._compass.offset(columns, [self._headings[n] for n in near])
+        self._compass = None
+        if self._look_offset is None:
+            return ""
+        return f"; heading offset {math.degrees(self._look_offset):+.0f} deg from the look"
 
     def _start(self, start: NodeId, reason: str, heading_rad: Optional[float]) -> NavigationStep:
         """Placed at ``start``: plan to the goal and navigate (FAILED when no plan exists)."""
@@ -534,11 +557,18 @@ class Navigator:
 
     def heading_offset(self) -> Optional[float]:
         """The map-to-odometry heading offset the heading gate uses (radians; odometry heading
-        minus the map's): the median of the offsets at the last
+        minus the map's): the first look round's (``localiser.compass_bandwidth_deg``), else the
+        median of the offsets at the last
         ``localiser.relocalise_heading_confirmations`` confirmations, taken as differences from
         the newest so that offsets either side of +-pi average right; None before the first
         confirmation with a heading (or on a map without headings)."""
+        if self._look_offset is not None:
+            return self._look_offset
         return median_offset(list(self._offsets)[-self.config.localiser.relocalise_heading_confirmations:])
+
+    def _guard_offset(self) -> Optional[float]:
+        """The heading guard's offset: the look's, else the median of its last confirmations."""
+        return self._look_offset if self._look_offset is not None else self._guard.offset(self._offsets)
 
     def _facing_as_mapped(self, heading_rad: Optional[float]) -> np.ndarray:
         """Per column: whether the robot faces the way the mapping drive faced at that node,
@@ -594,7 +624,7 @@ class Navigator:
                 self.chooser.reset()              # it missed the ticks of the turn
                 self._enter(NavState.NAVIGATING)
             if self._supervisor.settling and self._guard is not None:
-                hold = self._guard.hold(self.goal_node, heading_rad, self._offsets)
+                hold = self._guard.hold(self.goal_node, heading_rad, self._guard_offset())
                 if hold is not None:
                     self.chooser.reset()          # it steers again only if the approach ends otherwise
                     return self._step(hold[0], decision, reason=f"{decision.reason}; {hold[1]}")
@@ -603,7 +633,7 @@ class Navigator:
             # the views match nothing: no third can steer (nor find the target turning in place),
             # the map's heading can
             along = None if self._guard is None else self._guard.along(
-                decision.target_node, heading_rad, self._offsets, "driving on")
+                decision.target_node, heading_rad, self._guard_offset(), "driving on")
             action, why = along if along is not None else (Action.FORWARD, "forward")
             self.chooser.reset()
             if self._state is NavState.SEARCHING:
@@ -722,7 +752,7 @@ class Navigator:
         ``heading_guard``), or None."""
         if self._guard is None:
             return None
-        turn = self._guard.check(decision.target_node, heading_rad, self._offsets)
+        turn = self._guard.check(decision.target_node, heading_rad, self._guard_offset())
         return None if turn is None else (turn[0], f"{decision.reason}; {turn[1]}")
 
     def _approach_corner(self, decision: SupervisorDecision, node: NodeId) -> Optional[tuple]:

@@ -820,7 +820,8 @@ def test_as_published_switches_off_every_addition_and_keeps_the_rest():
     p = CONFIG.as_published()
     loc = p.localiser
     assert (loc.min_margin, loc.second_look, loc.first_view, loc.relocalise_hops, loc.relocalise_expected,
-            loc.relocalise_heading_tolerance_deg, loc.from_belief) == (0.0, False, False, 0, False, 180.0, "off")
+            loc.relocalise_heading_tolerance_deg, loc.from_belief, loc.compass_bandwidth_deg) == \
+        (0.0, False, False, 0, False, 180.0, "off", 0.0)
     assert not p.supervisor.confirm_best_of_map and p.supervisor.goal_settle_ticks == 0
     assert CONFIG.supervisor.goal_image_arrival and not p.supervisor.goal_image_arrival
     assert not p.heading_hints and p.blind_forward_ticks == 0 and not p.hold_action_between_votes
