@@ -137,28 +137,3 @@ def test_a_goal_descriptor_of_another_length_is_refused(chain):
         run_episode(base, topomap, descriptor, N_NODES - 1, CONFIG, 10, goal_descriptor=[1.0, 0.0])
     base.close()
 
-
-def test_the_heading_comes_from_the_gyro_where_there_is_one():
-    """The navigator's heading: the gyro's rate integrated from the odometry's yaw at the start
-    (wheel odometry loses degrees on every turn in place), else the odometry's yaw."""
-    import math
-
-    from core.hal import Odometry, SensorFrame
-    from robot.episode.loop import _Heading
-
-    def frame(t, wheel_yaw, rate):
-        return SensorFrame(stamp_s=t, rgb=None, imu_yaw_rate_radps=rate,
-                           odometry=Odometry(x_m=0.0, y_m=0.0, yaw_rad=wheel_yaw, v_mps=0.0, w_radps=0.0,
-                                             left_m=0.0, right_m=0.0))
-
-    heading = _Heading()
-    assert heading.update(frame(0.0, 0.2, 0.0)) == pytest.approx(0.2)
-    # turning at 1 rad/s for 1 s from rest: the trapezoid rule over the ramp and the steady part;
-    # the wheels claim 1.3 rad (slip)
-    readings = [heading.update(frame(0.1 * k, 0.2 + 0.13 * k, min(1.0, 0.5 * k))) for k in range(1, 11)]
-    assert readings[-1] == pytest.approx(0.2 + 0.05 * 0.5 + 0.05 * 1.5 + 8 * 0.1)
-    assert abs(readings[-1] - (0.2 + 1.3)) > 0.3
-    # no gyro: the odometry's yaw; neither: None
-    assert _Heading().update(frame(0.0, 0.4, None)) == pytest.approx(0.4)
-    assert _Heading().update(SensorFrame(stamp_s=0.0, rgb=None)) is None
-    assert math.isfinite(_Heading().update(SensorFrame(stamp_s=0.0, rgb=None, imu_yaw_rate_radps=0.3)))

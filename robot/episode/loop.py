@@ -140,24 +140,22 @@ class ActionPolicy(Protocol):
 
 
 class _Heading:
-    """Yaw for the navigator: the gyro's rate integrated (trapezoid rule), else the odometry's
-    yaw, else None. The gyro first: a skid-steer base's wheel odometry loses degrees on every turn
-    in place (the wheels slip sideways), a gyro's drift is a fraction of a degree a minute."""
+    """Yaw for the navigator's turn meter: odometry yaw, else the integrated IMU rate, else None."""
 
     def __init__(self) -> None:
         self._yaw: Optional[float] = None
-        self._last: Optional[tuple[float, float]] = None    # (stamp_s, rate) of the last gyro reading
+        self._stamp: Optional[float] = None
 
     def update(self, frame: SensorFrame) -> Optional[float]:
+        if frame.odometry is not None:
+            return float(frame.odometry.yaw_rad)
         if frame.imu_yaw_rate_radps is None:
-            self._yaw = self._last = None
-            return None if frame.odometry is None else float(frame.odometry.yaw_rad)
-        rate = float(frame.imu_yaw_rate_radps)
+            return None
         if self._yaw is None:
-            self._yaw = 0.0 if frame.odometry is None else float(frame.odometry.yaw_rad)
-        elif self._last is not None:
-            self._yaw += 0.5 * (rate + self._last[1]) * max(0.0, frame.stamp_s - self._last[0])
-        self._last = (frame.stamp_s, rate)
+            self._yaw = 0.0
+        elif self._stamp is not None:
+            self._yaw += float(frame.imu_yaw_rate_radps) * max(0.0, frame.stamp_s - self._stamp)
+        self._stamp = frame.stamp_s
         return self._yaw
 
 
