@@ -20,6 +20,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from controllers.heading_guard import median_offset
 from core.angles import wrap_angle
 
 #: the headings the smoothed similarity is evaluated at (1 deg apart)
@@ -69,7 +70,4 @@ class LookCompass:
             peak = self.peak_rad(column)
             if peak is not None:
                 offsets.append(wrap_angle(peak - float(mapped)))
-        if not offsets:
-            return None
-        first = offsets[0]
-        return wrap_angle(first + float(np.median([wrap_angle(o - first) for o in offsets])))
+        return median_offset(offsets)

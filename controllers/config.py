@@ -303,7 +303,7 @@ class LocaliserConfig:
     #: where the placed node and its neighbours within one arc matched best during the turn
     #: (:mod:`controllers.compass`, each node's similarity smoothed over the heading with a kernel
     #: of this many degrees), not the heading the robot faced when placed; it stands for the
-    #: episode (the heading comes from the gyro). 0: the placed heading and the confirmations.
+    #: episode. 0: the placed heading and the confirmations.
     compass_bandwidth_deg: float = 0.0
 
     def __post_init__(self) -> None:
