@@ -38,7 +38,8 @@ Additions, each for a failure seen in practice:
   ``t_lost`` for the lost patience, the robot is not declared lost while it has driven less
   than ``odometry_max_m`` since the last node its view confirmed: the target is confirmed by
   odometry once the robot has driven the arc's mapped length from the current node (the goal
-  never is: arrival needs its view). Views of a stretch a moved prop changed match nothing;
+  never is: arrival needs its view); a robot that has driven more than ``odometry_max_m``
+  since that node when the patience runs out is lost (where it went is unknown). Views of a stretch a moved prop changed match nothing;
   re-localising there found the same node again and again and gave up.
 
 GOAL_REACHED and LOST are final: later ticks still update the filter but repeat the final
@@ -153,6 +154,7 @@ class NodeSwitchSupervisor:
         # confirmed by its view (driving on by odometry); None until the first distance arrives
         self._at_node_m: Optional[float] = None
         self._at_sight_m: Optional[float] = None
+        self._driving_on = False   # whether this spell of matching nothing is driven on by odometry
 
     @property
     def index(self) -> int:
@@ -252,6 +254,8 @@ class NodeSwitchSupervisor:
         best = float(path_scores[window.start:window.stop].max())
         elsewhere = self._map_best > best   # the best node of the map lies outside the window
         self._lost_ticks = self._lost_ticks + 1 if (best < thresholds.t_lost and elsewhere) else 0
+        if self._lost_ticks == 0:
+            self._driving_on = False
         cfg = self.config.supervisor
         if self._lost_ticks >= cfg.lost_patience_ticks:
             why = f"best filtered score in the window {best:.3f} < t_lost {thresholds.t_lost:.3f} for " \
@@ -290,6 +294,9 @@ class NodeSwitchSupervisor:
         if arc is None or not arc > 0:
             return None
         driven = travelled_m - self._at_node_m
+        if not self._driving_on and blind > limit:   # the lost check came late: where it went is unknown
+            return None
+        self._driving_on = True
         # the budget counts to where the map puts a node, not to the tick that finds it passed
         within = self._at_node_m + arc - self._at_sight_m <= limit
         if driven >= arc and within and self._index + 1 < len(self.path) - 1:   # the goal needs its view

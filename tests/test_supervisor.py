@@ -407,6 +407,18 @@ def test_a_node_seen_again_ends_the_drive_on_and_renews_its_budget():
     assert any(d.state is SupervisorState.LOST for d in decisions)
 
 
+def test_a_robot_already_past_the_budget_is_lost_not_moved_on_by_odometry():
+    """The window kept a weak match (not lost) for 4 m without confirming a node, then matched
+    nothing: no node is confirmed by odometry, however near the map puts the next one."""
+    n = 10
+    sup = NodeSwitchSupervisor(range(n), range(n), ODOMETRY, arc_lengths_m=ARCS_1M)
+    weak = row(n, base=0.2, n0=0.45)       # above t_lost, below t_change_node: not lost, no progress
+    decisions = _drive(sup, [weak] * 160 + [_blind(n, far=9)] * 40)
+    assert not any(d.confirmed_node is not None for d in decisions)
+    lost = next(k for k, d in enumerate(decisions) if d.state is SupervisorState.LOST)
+    assert lost >= 160 and "drove 4." in decisions[lost].reason and "since the last node seen" in decisions[lost].reason
+
+
 def test_the_goal_is_never_reached_by_odometry():
     sup = NodeSwitchSupervisor([0, 1, 2], range(4), ODOMETRY, arc_lengths_m=ARCS_1M)
     decisions = _drive(sup, [_blind(4, far=3)] * 150)
