@@ -302,8 +302,9 @@ class LocaliserConfig:
     #: robot (``from_belief``, ``belief_min_turn_deg`` 360), the map-to-odometry heading offset is
     #: where the placed node and its neighbours within one arc matched best during the turn
     #: (:mod:`controllers.compass`, each node's similarity smoothed over the heading with a kernel
-    #: of this many degrees), not the heading the robot faced when placed; it stands for the
-    #: episode. 0: the placed heading and the confirmations.
+    #: of this many degrees), not the heading the robot faced when placed; it stays one vote of
+    #: the median over the confirmations that follow (they track the odometry's drift).
+    #: 0: the placed heading and the confirmations.
     compass_bandwidth_deg: float = 0.0
 
     def __post_init__(self) -> None:

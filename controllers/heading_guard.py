@@ -39,6 +39,15 @@ def median_offset(offsets: Sequence[float]) -> Optional[float]:
     return wrap_angle(newest + float(np.median(spread)))
 
 
+def offset_votes(offsets: Sequence[float], count: int, look: Optional[float] = None) -> list[float]:
+    """The last ``count`` offsets (newest last); with a look round's offset, that one and the
+    last ``count - 1``: the look stays one vote for the whole episode."""
+    offsets = [float(o) for o in offsets]
+    if look is None:
+        return offsets[-count:]
+    return [float(look)] + (offsets[-(count - 1):] if count > 1 else [])
+
+
 class HeadingGuard:
     """Turns the robot back towards the route when it faces too far from it (see the module
     docstring). ``headings``: node -> the mapping drive's odometry heading there (radians)."""
@@ -61,9 +70,13 @@ class HeadingGuard:
         """How far the robot faces from the target's mapped heading (positive: to its left)."""
         return wrap_angle(float(heading_rad) - (self._headings[target] + float(offset_rad)))
 
-    def offset(self, offsets: Sequence[float]) -> Optional[float]:
+    def offset(self, offsets: Sequence[float], look: Optional[float] = None) -> Optional[float]:
         """The map-to-odometry heading offset from those measured at confirmations (newest last):
-        the median of the last ``confirmations``, None with fewer than ``min_confirmations``."""
+        the median of the last ``confirmations``, None with fewer than ``min_confirmations``.
+        With a look round's offset (``look``) that stays one of them and suffices alone: it is
+        measured over a whole turn, and the confirmations after it follow the odometry's drift."""
+        if look is not None:
+            return median_offset(offset_votes(offsets, self.config.confirmations, look))
         offsets = list(offsets)[-self.config.confirmations:]
         return median_offset(offsets) if len(offsets) >= self.config.min_confirmations else None
 

@@ -33,8 +33,9 @@ States (:class:`NavState`):
   odometry heading) before the voter steers again: at corners the target is beside the field
   of view. Also the heading guard's turn (``heading_guard``, :mod:`controllers.heading_guard`):
   facing more than ``max_error_deg`` from the target node's mapped heading (through the
-  map-to-odometry offset measured at the nodes confirmed, or by the first look round with
-  ``localiser.compass_bandwidth_deg``), the robot turns back to within ``release_deg`` before
+  map-to-odometry offset measured at the nodes confirmed; with
+  ``localiser.compass_bandwidth_deg`` the first look round's offset stands for the placement's
+  and stays one vote of the median), the robot turns back to within ``release_deg`` before
   the voter steers again. In the final approach (the goal node
   confirmed, driving on until the goal is seen best) the guard holds the goal node's mapped
   heading instead of the votes (``heading_guard.final_approach``): the state stays NAVIGATING.
@@ -61,8 +62,9 @@ States (:class:`NavState`):
   plan's stretch). With ``node_headings``, a node of the local search counts only while the
   robot faces (by odometry) the way the mapping drive faced there, to within
   ``localiser.relocalise_heading_tolerance_deg``: the map-to-odometry heading offset is the
-  first look round's (``localiser.compass_bandwidth_deg``), else the median of those at the
-  last ``localiser.relocalise_heading_confirmations`` confirmations (1: the anchor's alone).
+  median of those at the last ``localiser.relocalise_heading_confirmations`` confirmations (1:
+  the anchor's alone); a first look round's (``localiser.compass_bandwidth_deg``) stays one of
+  them (1: it alone).
 * ARRIVED (final): the goal node was confirmed above ``t_milestone``; velocity zero. With a
   goal image (``goal_score`` passed to :meth:`Navigator.tick`) and
   ``supervisor.goal_image_arrival``, the settle after the goal node's confirmation stops
@@ -130,7 +132,7 @@ from controllers.belief import BeliefSnapshot
 from controllers.choosers import ActionChooser, ChooserInputError, PolicyChooser, TargetView, VoterChooser
 from controllers.compass import LookCompass
 from controllers.config import NavigationConfig
-from controllers.heading_guard import HeadingGuard, median_offset
+from controllers.heading_guard import HeadingGuard, median_offset, offset_votes
 from controllers.localisation import (
     InitialLocaliser,
     Localisation,
@@ -298,7 +300,7 @@ class Navigator:
         # the first look round's views, for the heading offset (``localiser.compass_bandwidth_deg``)
         self._compass = (LookCompass(math.radians(bandwidth)) if self._headings is not None and bandwidth > 0
                          else None)
-        self._look_offset: Optional[float] = None   # the offset the look measured, for the episode
+        self._look_offset: Optional[float] = None   # the look's offset: one vote for the episode
         self._hint: Optional[tuple] = None        # (confirmed node, odometry heading then)
         self._hint_done: Optional[tuple] = None   # the (node, target) pair already turned for
         # the corner node's view on the way to it: [best filtered score, ticks, ticks since the best]
@@ -514,8 +516,8 @@ class Navigator:
 
     def _start(self, start: NodeId, reason: str, heading_rad: Optional[float]) -> NavigationStep:
         """Placed at ``start``: plan to the goal and navigate (FAILED when no plan exists)."""
-        if self._state is NavState.LOCALISING:
-            self._set_anchor(start, heading_rad)
+        if self._state is NavState.LOCALISING:   # a look's offset stands for the placement's
+            self._set_anchor(start, heading_rad if self._look_offset is None else None)
         self._local = None
         self._remember(start)
         try:
@@ -557,18 +559,17 @@ class Navigator:
 
     def heading_offset(self) -> Optional[float]:
         """The map-to-odometry heading offset the heading gate uses (radians; odometry heading
-        minus the map's): the first look round's (``localiser.compass_bandwidth_deg``), else the
-        median of the offsets at the last
-        ``localiser.relocalise_heading_confirmations`` confirmations, taken as differences from
+        minus the map's): the median of the offsets at the last
+        ``localiser.relocalise_heading_confirmations`` confirmations, the first look round's
+        (``localiser.compass_bandwidth_deg``) always one of them, taken as differences from
         the newest so that offsets either side of +-pi average right; None before the first
         confirmation with a heading (or on a map without headings)."""
-        if self._look_offset is not None:
-            return self._look_offset
-        return median_offset(list(self._offsets)[-self.config.localiser.relocalise_heading_confirmations:])
+        return median_offset(offset_votes(self._offsets, self.config.localiser.relocalise_heading_confirmations,
+                                          self._look_offset))
 
     def _guard_offset(self) -> Optional[float]:
-        """The heading guard's offset: the look's, else the median of its last confirmations."""
-        return self._look_offset if self._look_offset is not None else self._guard.offset(self._offsets)
+        """The heading guard's offset: the median of its last confirmations, the look's among them."""
+        return self._guard.offset(self._offsets, self._look_offset)
 
     def _facing_as_mapped(self, heading_rad: Optional[float]) -> np.ndarray:
         """Per column: whether the robot faces the way the mapping drive faced at that node,

@@ -8,6 +8,8 @@ import pytest
 
 from controllers.actions import Action
 from controllers.compass import LookCompass
+from controllers.config import HeadingGuardConfig
+from controllers.heading_guard import HeadingGuard, offset_votes
 from controllers.navigator import Navigator, NavState
 from core.angles import wrap_angle
 from core.hal import Pose2D
@@ -80,3 +82,30 @@ def test_the_navigator_takes_the_offset_from_the_look_not_from_the_heading_it_st
     plain, step = _placed_after_a_look(0.0)
     assert step.state is NavState.NAVIGATING and "heading offset" not in step.reason
     assert abs(math.degrees(wrap_angle(plain.heading_offset() - 0.7))) > 15.0
+
+
+def test_the_look_stays_one_vote_of_the_confirmations_median():
+    """The look's offset counts alone at first; confirmations after it, newest last, outvote it
+    once they agree (the odometry drifts), but one stray confirmation does not."""
+    guard = HeadingGuard(HeadingGuardConfig(confirmations=5, min_confirmations=2), {0: 0.0})
+    look = math.radians(10.0)
+    assert guard.offset([]) is None and guard.offset([], look) == pytest.approx(look)
+    stray = [math.radians(40.0)]
+    assert guard.offset(stray) is None                                   # one confirmation: too few
+    assert math.degrees(guard.offset(stray + [look], look)) == pytest.approx(10.0)
+    drifted = [math.radians(d) for d in (60.0, 16.0, 17.0, 18.0, 19.0, 20.0)]
+    assert math.degrees(guard.offset(drifted, look)) == pytest.approx(18.0)   # 10, 17, 18, 19, 20
+    assert offset_votes(drifted, 5, look) == [look] + drifted[-4:]
+    assert offset_votes(drifted, 1, look) == [look] and offset_votes(drifted, 2) == drifted[-2:]
+    # across +-pi: the votes average the short way round
+    assert abs(math.degrees(wrap_angle(guard.offset([math.radians(-178.0)] * 2, math.radians(178.0))
+                                       - math.pi))) < 3.0
+
+
+def test_the_navigators_offset_follows_the_confirmations_after_the_look():
+    nav, _ = _placed_after_a_look(10.0)
+    look = nav.heading_offset()
+    assert nav._guard_offset() == pytest.approx(look)
+    for node in (2, 3, 4):           # confirmations facing 0.2 rad further left than the look says
+        nav._confirmed(node, look + 0.2)
+    assert nav._guard_offset() == pytest.approx(look + 0.2)
