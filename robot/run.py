@@ -46,8 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "build the topological map (or map a --video / --images without a robot); "
                              "navigate: drive to a goal node or goal image of a map; show: draw a map's pictures")
     parser.add_argument("--world", default="hospital",
-                        help="a world name from configs/worlds (hospital, office, warehouse) or a path to a world "
-                             "YAML file")
+                        help="a world name from configs/worlds (hospital, office, warehouse, garage) or a path "
+                             "to a world YAML file")
     parser.add_argument("--out", type=Path, default=None,
                         help="output folder (default runs/<world>/)")
     parser.add_argument("--config", type=Path, default=None,

@@ -310,8 +310,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     and draw it, the quickest way to see a new world while writing it."""
     parser = Parser(prog="python -m sim.topdown",
                                      description="Check a world YAML and write its top-down picture.")
-    parser.add_argument("world", help="a world name in configs/worlds (hospital, office, warehouse) or a path "
-                                      "to a YAML file")
+    parser.add_argument("world", help="a world name in configs/worlds (hospital, office, warehouse, garage) or a "
+                                      "path to a YAML file")
     parser.add_argument("--seed", type=int, default=0, help="appearance seed: moves movable props (default 0)")
     parser.add_argument("--px-per-m", type=float, default=40.0, help="scale in pixels per metre (default 40)")
     parser.add_argument("--out", default=None, help="PNG to write (default: topdown_<world>.png here)")

@@ -178,11 +178,13 @@ def test_a_drive_starting_just_past_a_corner_closes_its_loop(tmp_path):
     assert abs(math.remainder(seen_at.yaw_rad - matched.yaw_rad, 2 * math.pi)) < math.radians(30)
 
 
-def test_the_warehouse_walk_closes_its_loop_onto_its_start(tmp_path):
-    """The warehouse's walkthrough starts 0.3 m past a corner and ends 0.6 m past its start; its
-    only revisit is those last frames, which no node decision offers as a candidate."""
-    out = tmp_path / "warehouse"
-    proc = _run("--mode", "map", "--world", "warehouse", "--out", str(out), "--quiet")
+@pytest.mark.parametrize("world", ["warehouse", "garage"])
+def test_a_walk_begun_past_a_corner_closes_its_loop_onto_its_start(tmp_path, world):
+    """The warehouse's and the garage's walkthroughs start 0.3 m past a corner and end 0.6 m past
+    their start; the only revisit is those last frames, which no node decision offers as a
+    candidate."""
+    out = tmp_path / world
+    proc = _run("--mode", "map", "--world", world, "--out", str(out), "--quiet")
     assert proc.returncode == 0, proc.stderr
     loaded = load_map(out / "map")
     closures = loaded.log.loop_closure_events()

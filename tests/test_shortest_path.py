@@ -86,9 +86,9 @@ def test_blocked_or_unreachable_points_are_named(room):
         shortest_path_length_m(room, (2.0, 4.0), (6.0, 4.0), grid=(cut, origin))
 
 
-@pytest.mark.slow     # the shortest paths over the hospital, office and warehouse
+@pytest.mark.slow     # the shortest paths over the hospital, office, warehouse and garage
 def test_shipped_routes_have_shortest_lengths_below_their_taught_lengths():
-    for world in ("hospital", "office", "warehouse"):
+    for world in ("hospital", "office", "warehouse", "garage"):
         spec = load_world(world)
         for name, route in spec.routes.evaluation.items():
             length = route_shortest_length_m(spec, name)

@@ -39,7 +39,8 @@ MINIMAL = {
 
 # what the issue asks of each shipped world: route name -> about how long
 EXPECTED_ROUTES = {"hospital": {"easy": 10.0, "moderate": 20.0, "hard": 35.0}, "office": {"main": 40.0},
-                   "warehouse": {"easy": 10.0, "moderate": 20.0, "hard": 33.0}}
+                   "warehouse": {"easy": 10.0, "moderate": 20.0, "hard": 33.0},
+                   "garage": {"easy": 10.0, "moderate": 20.0, "hard": 33.0}}
 CLEARANCE_M = 0.45
 
 
