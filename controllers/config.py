@@ -21,6 +21,7 @@ from typing import Optional
 
 from core.hal import VelocityCommand
 from core.validate import check_bool, check_choice, check_count, check_positive, check_range, check_similarity
+from core.yaw_rate import HEADING_SOURCES
 
 
 @dataclass(frozen=True)
@@ -558,9 +559,16 @@ class NavigationConfig:
     #: ``heading_hint_peak_ticks``, at most ``heading_hint_approach_ticks`` (0: turn at once).
     heading_hint_approach_ticks: int = 24
     heading_hint_peak_ticks: int = 2
+    #: Not in the paper. Where the heading of the turn hints, the heading guard, the heading gate
+    #: and the belief's directions comes from, in the mapping drive (the map's node headings) and
+    #: in navigation alike: ``odometry`` (the wheels' yaw) or ``gyro`` (the gyro's yaw rate
+    #: integrated; a wheel scrubbing along a wall turns the wheels' yaw, not the gyro's). A map
+    #: made before gyro headings were kept has none: rebuild it for ``gyro``.
+    heading_source: str = "odometry"
 
     def __post_init__(self) -> None:
         check_bool("heading_hints", self.heading_hints)
+        check_choice("heading_source", self.heading_source, HEADING_SOURCES)
         for name in ("heading_hint_min_deg", "heading_hint_tolerance_deg"):
             check_range(name, getattr(self, name), 0.0, 180.0, low_open=True, high_open=True, what="a number of degrees")
         check_count("heading_hint_approach_ticks", self.heading_hint_approach_ticks, 0)

@@ -22,6 +22,7 @@ import networkx as nx
 import numpy as np
 
 from core.hal import Pose2D
+from core.yaw_rate import HEADING_SOURCES
 
 ARC_KINDS = ("sequential", "loop_closure", "merged")
 
@@ -34,6 +35,10 @@ class MapBuildError(MapError):
     """Bad input to the builder (wrong shape, not normalised, frames out of order)."""
 
 
+#: where the mapping drive's heading at a node came from -> the node's field
+HEADING_FIELDS = dict(zip(HEADING_SOURCES, ("odom_yaw_rad", "gyro_yaw_rad")))
+
+
 @dataclass(frozen=True)
 class MapNode:
     """One node: ``row`` is its row in :attr:`TopoMap.descriptors`."""
@@ -44,6 +49,7 @@ class MapNode:
     row: int
     true_pose: Optional[Pose2D] = None
     odom_yaw_rad: Optional[float] = None   # the mapping drive's odometry heading here (rad), if recorded
+    gyro_yaw_rad: Optional[float] = None   # the mapping drive's integrated gyro heading here (rad), if recorded
 
 
 @dataclass(frozen=True)
@@ -114,7 +120,8 @@ class TopoMap:
             raise MapError(f"no node {node_id!r} in the map")
         a = self._g.nodes[node_id]
         return MapNode(node_id=node_id, keyframe_index=a["keyframe_index"], stamp_s=a["stamp_s"],
-                       row=a["row"], true_pose=a["true_pose"], odom_yaw_rad=a.get("odom_yaw_rad"))
+                       row=a["row"], true_pose=a["true_pose"], odom_yaw_rad=a.get("odom_yaw_rad"),
+                       gyro_yaw_rad=a.get("gyro_yaw_rad"))
 
     def nodes(self) -> list[MapNode]:
         """All nodes in descriptor-row order."""
@@ -162,16 +169,31 @@ class TopoMap:
     def odom_headings(self) -> Optional[dict[int, float]]:
         """Node id -> the mapping drive's odometry heading (rad) when every node has one, else None
         (maps from a video or an image folder). Only differences between nodes mean anything."""
-        headings = {i: self._g.nodes[i].get("odom_yaw_rad") for i in self._ids}
+        return self.headings("odometry")
+
+    def headings(self, source: str) -> Optional[dict[int, float]]:
+        """Node id -> the mapping drive's heading from ``source`` (``odometry``: the wheels',
+        ``gyro``: the gyro's rate integrated) when every node has one, else None (maps from a
+        video or an image folder, or made before gyro headings were kept)."""
+        if source not in HEADING_FIELDS:
+            raise MapError(f"heading source must be one of {sorted(HEADING_FIELDS)}, got {source!r}")
+        headings = {i: self._g.nodes[i].get(HEADING_FIELDS[source]) for i in self._ids}
         return headings if self._ids and None not in headings.values() else None
 
     def set_odom_yaw(self, node_id: int, yaw_rad: Optional[float]) -> None:
         """Record the mapping drive's odometry heading at a node (None: unknown)."""
+        self._set_heading(node_id, "odometry", yaw_rad)
+
+    def set_gyro_yaw(self, node_id: int, yaw_rad: Optional[float]) -> None:
+        """Record the mapping drive's integrated gyro heading at a node (None: unknown)."""
+        self._set_heading(node_id, "gyro", yaw_rad)
+
+    def _set_heading(self, node_id: int, source: str, yaw_rad: Optional[float]) -> None:
         if node_id not in self._g:
             raise MapError(f"no node {node_id!r} in the map")
         if yaw_rad is not None and not (isinstance(yaw_rad, (int, float, np.floating)) and math.isfinite(yaw_rad)):
-            raise MapError(f"odometry heading of node {node_id} must be a finite number, got {yaw_rad!r}")
-        self._g.nodes[node_id]["odom_yaw_rad"] = None if yaw_rad is None else float(yaw_rad)
+            raise MapError(f"{source} heading of node {node_id} must be a finite number, got {yaw_rad!r}")
+        self._g.nodes[node_id][HEADING_FIELDS[source]] = None if yaw_rad is None else float(yaw_rad)
 
     def loop_closures(self) -> list[MapArc]:
         return [a for a in self.arcs() if a.kind == "loop_closure"]

@@ -47,7 +47,7 @@ from maps.builder import NORM_TOLERANCE, BuildLog
 from maps.calibration import SimilaritySample
 from maps.config import MapThresholds
 from maps.descriptor_state import decode_state, encode_state
-from maps.graph import ARC_KINDS, MapError, TopoMap
+from maps.graph import ARC_KINDS, HEADING_FIELDS, MapError, TopoMap
 from maps.thumbnails import encode_thumbnail
 
 SCHEMA_VERSION = 1
@@ -156,6 +156,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
             entry["true_pose"] = _pose_dict(node.true_pose)
         if node.odom_yaw_rad is not None:
             entry["odom_yaw_rad"] = node.odom_yaw_rad
+        if node.gyro_yaw_rad is not None:
+            entry["gyro_yaw_rad"] = node.gyro_yaw_rad
         nodes.append(entry)
     arcs = [{"src": a.src, "dst": a.dst, "weight": a.weight, "kind": a.kind, "n_frames": a.n_frames,
              **({"length_m": a.length_m} if a.length_m is not None else {})} for a in topomap.arcs()]
@@ -304,10 +306,11 @@ def _parse_nodes(chk: _Checker, manifest: Mapping, files: Mapping[str, bytes]) -
                 raise chk.fail(f"{where}.true_pose", f"expected a mapping, got {pose!r}")
             pose = Pose2D(*(chk.number(f"{where}.true_pose.{f}", chk.key(f"{where}.true_pose", pose, f))
                             for f in ("x_m", "y_m", "yaw_rad")))
-        odom_yaw = entry.get("odom_yaw_rad")
-        if odom_yaw is not None:
-            odom_yaw = chk.number(f"{where}.odom_yaw_rad", odom_yaw)
-        nodes.append({"id": node_id, "thumbnail": thumb, "true_pose": pose, "odom_yaw_rad": odom_yaw,
+        yaws = {}
+        for field in HEADING_FIELDS.values():
+            yaw = entry.get(field)
+            yaws[field] = None if yaw is None else chk.number(f"{where}.{field}", yaw)
+        nodes.append({"id": node_id, "thumbnail": thumb, "true_pose": pose, **yaws,
                       "keyframe_index": chk.integer(f"{where}.keyframe_index", chk.key(where, entry, "keyframe_index")),
                       "stamp_s": chk.number(f"{where}.stamp_s", chk.key(where, entry, "stamp_s"))})
     return nodes
@@ -440,6 +443,8 @@ def load_map(path: str | Path, expected_identity: Optional[DescriptorIdentity] =
         topomap.add_node(x[row], node["keyframe_index"], node["stamp_s"], node["true_pose"], node_id=node["id"])
         if node["odom_yaw_rad"] is not None:
             topomap.set_odom_yaw(node["id"], node["odom_yaw_rad"])
+        if node["gyro_yaw_rad"] is not None:
+            topomap.set_gyro_yaw(node["id"], node["gyro_yaw_rad"])
     _add_arcs(chk, manifest, topomap)
     state = decode_state(files[state_name], f"map {path}: {state_name}")
 

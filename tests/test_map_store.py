@@ -375,3 +375,23 @@ def test_merged_nodes_round_trip(tmp_path):
     assert loaded.merged == made.merge.merged
     assert not set(loaded.merged) & set(loaded.topomap.node_ids.tolist())
     assert loaded.calibration is None
+
+
+def test_gyro_headings_round_trip_beside_the_odometrys(tmp_path):
+    made = build_map(landmark_route(seed=1, stand_frames=0).descriptors, MappingConfig())
+    topomap = made.topomap
+    ids = topomap.node_ids.tolist()
+    gyro = {n: 0.05 * k for k, n in enumerate(ids)}
+    for n in ids:
+        topomap.set_gyro_yaw(n, gyro[n])
+    assert topomap.headings("gyro") == gyro and topomap.odom_headings is None
+    with pytest.raises(MapError, match="gyro heading of node"):
+        topomap.set_gyro_yaw(ids[0], float("inf"))
+    with pytest.raises(MapError, match="heading source"):
+        topomap.headings("compass")
+    jpegs = {n: encode_thumbnail(frame_image(n)) for n in ids}
+    path = save_map(tmp_path / "m", topomap, identity=IDENTITY, descriptor_state={},
+                    thresholds=made.thresholds, thumbnails=jpegs)
+    loaded = load_map(path).topomap
+    assert loaded.headings("gyro") == gyro and loaded.odom_headings is None
+    assert loaded.node(ids[3]).gyro_yaw_rad == gyro[ids[3]]

@@ -60,12 +60,13 @@ def test_mapping_run_builds_a_map_along_the_drive(tiny_run):
         assert 0.5 < p.x_m < 5.5 and 0.5 < p.y_m < 3.5
     assert loaded.identity.backend == "effnet-vlad"
     # the drive's odometry heading at every node (navigation's turn hints): it turned as the truth did
-    headings = topomap.odom_headings
     first = topomap.nodes()[0]
-    for node in topomap.nodes():
-        turned_odom = headings[node.node_id] - headings[first.node_id]
-        turned_true = node.true_pose.yaw_rad - first.true_pose.yaw_rad
-        assert abs(math.remainder(turned_odom - turned_true, math.tau)) < 0.15
+    for source in ("odometry", "gyro"):     # and the gyro's, integrated over every recorded frame
+        headings = topomap.headings(source)
+        for node in topomap.nodes():
+            turned_map = headings[node.node_id] - headings[first.node_id]
+            turned_true = node.true_pose.yaw_rad - first.true_pose.yaw_rad
+            assert abs(math.remainder(turned_map - turned_true, math.tau)) < 0.15, (source, node.node_id)
     assert cv2.imread(str(out / "map" / "map.png")) is not None
     assert cv2.imread(str(out / "map" / "similarity.png")) is not None
     assert "nodes" in stdout and "loop closures" in stdout
@@ -97,7 +98,7 @@ def test_map_from_a_video_without_a_robot(tiny_run, tmp_path):
     loaded = load_map(tmp_path / "vmap" / "map")
     assert 5 <= len(loaded.topomap) <= summary["frames_read"] // 2
     assert all(node.true_pose is None for node in loaded.topomap.nodes())   # a video knows no poses
-    assert loaded.topomap.odom_headings is None                            # nor odometry
+    assert loaded.topomap.odom_headings is None and loaded.topomap.headings("gyro") is None   # nor odometry, gyro
     assert cv2.imread(str(tmp_path / "vmap" / "map" / "map.png")) is not None
 
 

@@ -115,3 +115,10 @@ def test_every_action_maps_to_its_velocity():
         assert cmd.is_zero == (not action.moves)
     with pytest.raises(TypeError, match="expected an Action"):
         action_velocity("forward", speeds)
+
+
+def test_the_heading_source_is_odometry_or_gyro():
+    assert NavigationConfig().heading_source == "odometry"
+    assert NavigationConfig(heading_source="gyro").heading_source == "gyro"
+    with pytest.raises(ValueError, match="heading_source"):
+        NavigationConfig(heading_source="compass")

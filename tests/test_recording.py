@@ -49,3 +49,27 @@ def test_missing_and_broken_recordings_are_named(tmp_path):
     (tmp_path / "frames.csv").write_text("index,stamp_s,file\n0,0.0,frames/000000.jpg\n")
     with pytest.raises(RecordingError, match="000000.jpg"):
         read_recording(tmp_path)
+
+
+def test_the_gyro_heading_is_integrated_over_every_frame_or_none(tmp_path):
+    """The recorded yaw rate turns into a heading per frame (trapezoid rule: a rate rising
+    linearly is integrated exactly); one frame without a rate leaves the whole drive without."""
+    out = tmp_path / "rec"
+    w = RecordingWriter(out)
+    for i in range(6):
+        frame = _frame(i)
+        w.append(SensorFrame(stamp_s=frame.stamp_s, rgb=frame.rgb, odometry=frame.odometry,
+                             imu_yaw_rate_radps=0.2 * frame.stamp_s))
+    w.finish()
+    frames = read_recording(out)
+    assert [f.gyro_yaw_rad for f in frames] == pytest.approx([0.1 * (0.1 * i) ** 2 for i in range(6)])
+    table = out / "frames.csv"
+    rows = table.read_text().splitlines()
+    cells = rows[3].split(",")
+    cells[8] = ""                                         # imu_yaw_rate_radps of frame 2
+    table.write_text("\n".join(rows[:3] + [",".join(cells)] + rows[4:]) + "\n")
+    assert all(f.gyro_yaw_rad is None for f in read_recording(out))
+    cells[0], cells[1], cells[8] = "2", "0.0", "0.1"     # a stamp that goes back
+    table.write_text("\n".join(rows[:3] + [",".join(cells)] + rows[4:]) + "\n")
+    with pytest.raises(RecordingError, match="line 4: gyro stamps must not go back"):
+        read_recording(out)

@@ -313,9 +313,10 @@ def main(args: argparse.Namespace) -> int:
         if "ours-hints" in methods or ("ours" in methods and config.navigation.heading_hints):
             from maps.store import load_map
 
+            source = config.navigation.heading_source
             for map_dir in maps.values():
-                if load_map(map_dir).topomap.odom_headings is None:
-                    raise PaperBenchError(f"{map_dir}: the map has no odometry headings (made by an older version); "
+                if load_map(map_dir).topomap.headings(source) is None:
+                    raise PaperBenchError(f"{map_dir}: the map has no {source} headings (made by an older version); "
                                           "the turn hints need them: delete the folder to rebuild it")
         baseline = None
         if "sptm" in methods:

@@ -43,8 +43,9 @@ from controllers.navigator import DRIVING_STATES, NavigationStep, Navigator, Nav
 from controllers.stall import StallMonitor
 from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
+from core.yaw_rate import YawRateIntegrator
 from descriptors.base import Descriptor
-from maps.graph import TopoMap
+from maps.graph import MapError, TopoMap
 from robot.episode.belief import BeliefTracker, OdometryMotion, map_belief
 
 
@@ -139,24 +140,31 @@ class ActionPolicy(Protocol):
     def for_frame(self, rgb: np.ndarray) -> Callable[[int], Action]: ...
 
 
-class _Heading:
-    """Yaw for the navigator's turn meter: odometry yaw, else the integrated IMU rate, else None."""
+def navigation_headings(topomap: TopoMap, source: str) -> Optional[dict[int, float]]:
+    """The map's node headings from ``source`` (``navigation.heading_source``); None for a map
+    without any (from a video). A recorded map without that source's raises MapError: navigating
+    on the other source's headings would mix two drifts."""
+    headings = topomap.headings(source)
+    if headings is None and source != "odometry" and topomap.odom_headings is not None:
+        raise MapError(f"navigation.heading_source {source!r}: the map has no {source} headings (made before "
+                       "they were kept); rebuild it from its recording")
+    return headings
 
-    def __init__(self) -> None:
-        self._yaw: Optional[float] = None
-        self._stamp: Optional[float] = None
+
+class _Heading:
+    """Yaw for the navigator (``navigation.heading_source``): ``odometry``: the odometry's yaw,
+    else the integrated IMU rate, else None; ``gyro``: the integrated IMU rate, else None."""
+
+    def __init__(self, source: str = "odometry") -> None:
+        self._source = source
+        self._gyro = YawRateIntegrator()
 
     def update(self, frame: SensorFrame) -> Optional[float]:
-        if frame.odometry is not None:
+        if frame.imu_yaw_rate_radps is not None:
+            self._gyro.update(frame.stamp_s, frame.imu_yaw_rate_radps)
+        if self._source == "odometry" and frame.odometry is not None:
             return float(frame.odometry.yaw_rad)
-        if frame.imu_yaw_rate_radps is None:
-            return None
-        if self._yaw is None:
-            self._yaw = 0.0
-        elif self._stamp is not None:
-            self._yaw += float(frame.imu_yaw_rate_radps) * max(0.0, frame.stamp_s - self._stamp)
-        self._stamp = frame.stamp_s
-        return self._yaw
+        return self._gyro.yaw_rad
 
 
 class _Distance:
@@ -234,11 +242,12 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     if belief is None and config.localiser.from_belief != "off":
         config = replace(config, localiser=replace(config.localiser, from_belief="off"))
         belief_setup += "; the robot places itself by the thresholded match instead (localiser.from_belief off)"
-    navigator = Navigator(topomap.graph, node_ids, goal_node, config, node_headings=topomap.odom_headings,
+    navigator = Navigator(topomap.graph, node_ids, goal_node, config,
+                          node_headings=navigation_headings(topomap, config.heading_source),
                           chooser=None if action_policy is None else PolicyChooser(),
                           arc_lengths_m=topomap.arc_lengths_m)
     distance = _Distance()
-    heading = _Heading()
+    heading = _Heading(config.heading_source)
     stall = _Stall(config) if config.recovery.enabled else None
     tracker = None if belief is None else BeliefTracker(belief)
     snapshot: Optional[BeliefSnapshot] = None

@@ -167,8 +167,10 @@ def build_map_from_frames(frames: Iterable[MapFrame], descriptor: Descriptor, co
     made = build_map(x, config, frame_indices=[f.index for f in kept], stamps_s=[f.stamp_s for f in kept],
                      true_poses=poses if all(p is not None for p in poses) else None)
     odom = {f.index: f.odom_yaw_rad for f in kept if f.odom_yaw_rad is not None}
-    for node in made.topomap.nodes():   # the drive's heading at each node (navigation's turn hints)
+    gyro = {f.index: f.gyro_yaw_rad for f in kept if f.gyro_yaw_rad is not None}
+    for node in made.topomap.nodes():   # the drive's heading at each node (turn hints, heading guard)
         made.topomap.set_odom_yaw(node.node_id, odom.get(node.keyframe_index))
+        made.topomap.set_gyro_yaw(node.node_id, gyro.get(node.keyframe_index))
     by_index = {f.index: f.rgb for f in kept}
     thumbnails = {node.node_id: by_index[node.keyframe_index] for node in made.topomap.nodes()}
     sample = similarity_sample(x)

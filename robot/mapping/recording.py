@@ -16,7 +16,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator, Optional
 
@@ -25,6 +25,7 @@ import numpy as np
 
 from core.atomic import AtomicFolder
 from core.hal import Pose2D, SensorFrame
+from core.yaw_rate import YawRateIntegrator
 
 COLUMNS = ["index", "stamp_s", "file", "odom_x_m", "odom_y_m", "odom_yaw_rad", "odom_v_mps",
            "odom_w_radps", "imu_yaw_rate_radps", "true_x_m", "true_y_m", "true_yaw_rad"]
@@ -41,6 +42,7 @@ class RecordedFrame:
     path: Path
     true_pose: Optional[Pose2D]
     odom_yaw_rad: Optional[float] = None   # the base's odometry heading (any fixed frame)
+    gyro_yaw_rad: Optional[float] = None   # the gyro's rate integrated over the recording (any fixed frame)
 
     def load_rgb(self) -> np.ndarray:
         bgr = cv2.imread(str(self.path), cv2.IMREAD_COLOR)
@@ -137,6 +139,7 @@ def read_recording(folder: str | Path) -> list[RecordedFrame]:
     if not table.is_file():
         raise RecordingError(f"{table}: not found; is {folder} a recording made by `robot.run --mode map`?")
     frames: list[RecordedFrame] = []
+    gyro: Optional[YawRateIntegrator] = YawRateIntegrator()   # None once a frame has no rate
     with open(table, newline="", encoding="utf-8") as f:
         reader = csv.DictReader(f)
         missing = [c for c in ("index", "stamp_s", "file") if c not in (reader.fieldnames or [])]
@@ -149,10 +152,21 @@ def read_recording(folder: str | Path) -> list[RecordedFrame]:
             path = folder / row["file"]
             if not path.is_file():
                 raise RecordingError(f"{path}: listed in {table} line {line} but missing")
+            rate = _opt(row, "imu_yaw_rate_radps", table, line)
+            if gyro is not None and rate is not None and stamp is not None:
+                try:
+                    gyro.update(stamp, rate)
+                except ValueError as exc:
+                    raise RecordingError(f"{table}: line {line}: {exc}") from None
+            else:
+                gyro = None
             frames.append(RecordedFrame(index=int(row["index"]), stamp_s=float(stamp or 0.0), path=path, true_pose=pose,
-                                        odom_yaw_rad=_opt(row, "odom_yaw_rad", table, line)))
+                                        odom_yaw_rad=_opt(row, "odom_yaw_rad", table, line),
+                                        gyro_yaw_rad=None if gyro is None else gyro.yaw_rad))
     if not frames:
         raise RecordingError(f"{table}: the recording has no frames")
+    if gyro is None:   # a heading from part of the drive would not match the rest
+        frames = [replace(f, gyro_yaw_rad=None) for f in frames]
     return frames
 
 

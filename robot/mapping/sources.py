@@ -33,6 +33,7 @@ class MapFrame:
     rgb: np.ndarray             # (H, W, 3) uint8
     true_pose: Optional[Pose2D] = None
     odom_yaw_rad: Optional[float] = None   # the base's odometry heading (recordings of a drive)
+    gyro_yaw_rad: Optional[float] = None   # the gyro's integrated heading (recordings of a drive)
 
 
 @dataclass(frozen=True)
@@ -87,7 +88,7 @@ class RecordingSource:
             if self.sampling.keep(pos, f.stamp_s, last):
                 last = f.stamp_s
                 yield MapFrame(f.index, f.stamp_s, _shrink(f.load_rgb(), self.sampling.max_width_px), f.true_pose,
-                               f.odom_yaw_rad)
+                               f.odom_yaw_rad, f.gyro_yaw_rad)
 
 
 class ImageFolderSource:
