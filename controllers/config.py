@@ -560,10 +560,11 @@ class NavigationConfig:
     heading_hint_approach_ticks: int = 24
     heading_hint_peak_ticks: int = 2
     #: Not in the paper. Where the heading of the turn hints, the heading guard, the heading gate
-    #: and the belief's directions comes from, in the mapping drive (the map's node headings) and
-    #: in navigation alike: ``odometry`` (the wheels' yaw) or ``gyro`` (the gyro's yaw rate
-    #: integrated; a wheel scrubbing along a wall turns the wheels' yaw, not the gyro's). A map
-    #: made before gyro headings were kept has none: rebuild it for ``gyro``.
+    #: and the look's offset comes from, in the mapping drive (the map's node headings) and in
+    #: navigation alike: ``odometry`` (the wheels' yaw) or ``gyro`` (the gyro's yaw rate
+    #: integrated; a wheel scrubbing along a wall turns the wheels' yaw, not the gyro's). The
+    #: belief keeps the wheel odometry's. A map made before gyro headings were kept has none:
+    #: rebuild it for ``gyro``.
     heading_source: str = "odometry"
 
     def __post_init__(self) -> None:

@@ -39,8 +39,9 @@ Additions, each for a failure seen in practice:
   than ``odometry_max_m`` since the last node its view confirmed: the target is confirmed by
   odometry once the robot has driven the arc's mapped length from the current node (the goal
   never is: arrival needs its view); a robot that has driven more than ``odometry_max_m``
-  since that node when the patience runs out is lost (where it went is unknown). Views of a stretch a moved prop changed match nothing;
-  re-localising there found the same node again and again and gave up.
+  since that node when the patience runs out is lost (where it went is unknown). Views of a
+  stretch a moved prop changed match nothing; re-localising there found the same node again
+  and again and gave up.
 
 GOAL_REACHED and LOST are final: later ticks still update the filter but repeat the final
 decision (with ``confirmed_node`` None).
