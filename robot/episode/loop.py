@@ -160,10 +160,10 @@ class _Heading:
         self._gyro = YawRateIntegrator()
 
     def update(self, frame: SensorFrame) -> Optional[float]:
+        if self._source == "odometry" and frame.odometry is not None:
+            return float(frame.odometry.yaw_rad)     # the gyro is not integrated where it is not used
         if frame.imu_yaw_rate_radps is not None:
             self._gyro.update(frame.stamp_s, frame.imu_yaw_rate_radps)
-        if self._source == "odometry" and frame.odometry is not None:
-            return float(frame.odometry.yaw_rad)
         return self._gyro.yaw_rad
 
 
