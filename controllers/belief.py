@@ -174,11 +174,14 @@ class SimilarityModel:
             other.extend(scores[hops > far_hops])
         return cls.fit(same, other)
 
-    def log_ratio(self, scores: np.ndarray) -> np.ndarray:
+    def log_ratio(self, scores: np.ndarray, capped: bool = True) -> np.ndarray:
         """``log p(c | same) - log p(c | other)``, the scores clipped to ``[mean_other, mean_same +
         CAP_STDS * std]``: between ``-slope * gap / 2`` and ``slope * (gap / 2 + CAP_STDS * std)``
-        for ``gap = mean_same - mean_other``."""
-        c = np.clip(np.asarray(scores, dtype=float), self.mean_other, self.mean_same + self.CAP_STDS * self.std)
+        for ``gap = mean_same - mean_other``. ``capped=False`` keeps the upper end: for a single
+        view placed on its own (a goal image), where no earlier views stand to be outweighed and
+        the best of two look-alikes must still win."""
+        upper = self.mean_same + self.CAP_STDS * self.std if capped else math.inf
+        c = np.clip(np.asarray(scores, dtype=float), self.mean_other, upper)
         return self.slope * (c - 0.5 * (self.mean_same + self.mean_other))
 
 

@@ -231,12 +231,13 @@ class LocaliserConfig:
     #: Applies when the caller gives the map's neighbourhoods (the navigator does).
     min_margin: float = 0.04
     neighbourhood_hops: int = 2
-    #: Not in the paper. A goal image whose best node scores above ``t_change_node`` but not
-    #: ``t_milestone`` is still its goal when every node more than ``neighbourhood_hops`` arcs
-    #: away scores at least this much lower: the goal picture is one look under the day's
-    #: light, taken between two keyframes, and scores less than a walkthrough frame does
-    #: against its own node. 0: ``t_milestone`` only (the paper).
-    goal_image_margin: float = 0.04
+    #: Not in the paper. A goal image is placed by the belief's likelihood (the map's own
+    #: keyframes' fit, against every node): its best node when the posterior mass within
+    #: ``belief.confidence_hops`` arcs of it reaches ``belief.confidence`` and it scores above
+    #: ``t_lost``. The goal picture is one look under the day's light, taken between two
+    #: keyframes, so its right node often scores below ``t_milestone``; what says it is the
+    #: goal is that nothing elsewhere comes close. False: above ``t_milestone`` only (the paper).
+    goal_by_likelihood: bool = True
     #: Not in the paper. After a full turn in which no view passed, turn on to the best view
     #: of that turn (above the floor, with the margin, best for at least two ticks in a row)
     #: and localise there when it matches again within ``second_look_tolerance``: under other
@@ -322,10 +323,9 @@ class LocaliserConfig:
         check_positive("full_turn_rad", self.full_turn_rad)
         check_count("max_search_ticks", self.max_search_ticks, 1)
         check_count("neighbourhood_hops", self.neighbourhood_hops, 0)
-        for name in ("min_margin", "goal_image_margin", "second_look_tolerance", "first_view_margin",
-                     "first_view_slack"):
+        for name in ("min_margin", "second_look_tolerance", "first_view_margin", "first_view_slack"):
             check_range(name, getattr(self, name), 0.0, 1.0, high_open=True)
-        for name in ("second_look", "first_view", "relocalise_expected"):
+        for name in ("second_look", "first_view", "relocalise_expected", "goal_by_likelihood"):
             check_bool(name, getattr(self, name))
 
 
@@ -587,7 +587,7 @@ class NavigationConfig:
         ``full_turn_rad``: a second turn shows the same views."""
         return replace(
             self,
-            localiser=replace(self.localiser, min_margin=0.0, goal_image_margin=0.0, second_look=False,
+            localiser=replace(self.localiser, min_margin=0.0, goal_by_likelihood=False, second_look=False,
                               first_view=False,
                               relocalise_hops=0, relocalise_expected=False,
                               relocalise_heading_tolerance_deg=180.0, from_belief="off",

@@ -10,6 +10,9 @@ Two additions of ours (``LocaliserConfig``): with the map's neighbourhoods, a ma
 every node outside its neighbourhood by ``min_margin`` (an ambiguous view is no match), and
 after a fruitless full turn the robot turns on to the best view of that turn (the *second
 look*) and localises there when it matches again.
+
+A goal image, one fixed look, is placed by the map's likelihood instead
+(:func:`localise_by_likelihood`): the posterior mass near its best node, not one threshold.
 """
 
 from __future__ import annotations
@@ -19,9 +22,11 @@ import math
 from dataclasses import dataclass
 from typing import Hashable, Mapping, Optional, Sequence
 
+import networkx as nx
 import numpy as np
 
 from controllers.actions import Action
+from controllers.belief import SimilarityModel, contrast
 from controllers.config import LocaliserConfig
 from core.angles import wrap_angle
 
@@ -38,12 +43,16 @@ class GoalNotLocalisedError(LocalisationError):
 
 @dataclass(frozen=True)
 class Localisation:
-    """The best node for one similarity row, and whether it passes ``t_milestone``."""
+    """The best node for one similarity row, and whether it passes ``t_milestone``; or, placed
+    by the likelihood (:func:`localise_by_likelihood`), the posterior mass near it
+    (``confidence``) against the ``needed`` level, ``t_milestone`` then being the floor."""
 
     best_node: NodeId
     best_score: float
     accepted: bool
     t_milestone: float
+    confidence: Optional[float] = None
+    needed: Optional[float] = None
 
     @property
     def node(self) -> Optional[NodeId]:
@@ -51,6 +60,12 @@ class Localisation:
         return self.best_node if self.accepted else None
 
     def describe(self) -> str:
+        if self.confidence is not None:
+            verdict = ">=" if self.confidence >= self.needed else "<"
+            floor = ">" if self.best_score > self.t_milestone else "<="
+            return (f"best node {self.best_node!r} with similarity {self.best_score:.3f} ({floor} floor "
+                    f"{self.t_milestone:.3f}), posterior mass {self.confidence:.2f} near it {verdict} "
+                    f"{self.needed:.2f}")
         verdict = ">" if self.accepted else "<="
         return (f"best node {self.best_node!r} with similarity {self.best_score:.3f} "
                 f"{verdict} t_milestone {self.t_milestone:.3f}")
@@ -86,6 +101,30 @@ def localise(similarities: np.ndarray, node_ids: Sequence[NodeId],
     score = float(row[j])
     node = plain_node_ids([node_ids[j]])[0]
     return Localisation(node, score, score > t_milestone, float(t_milestone))
+
+
+def localise_by_likelihood(similarities: np.ndarray, node_ids: Sequence[NodeId], graph: nx.DiGraph,
+                           model: SimilarityModel, *, confidence: float, hops: int,
+                           floor: float) -> Localisation:
+    """Place one view the belief's way: the posterior over the nodes from a uniform prior and the
+    view's likelihood ratio (``model``, fitted on the map's own keyframes, uncapped: this view is
+    the only evidence). The best node is accepted when the posterior mass within ``hops`` arcs
+    of it reaches ``confidence`` and its similarity exceeds ``floor`` (``t_lost``: below it a
+    view matches no node at all). A view between two keyframes scores below ``t_milestone``
+    and is still placed when nothing elsewhere comes close; a look-alike elsewhere splits the
+    mass and refuses it."""
+    row = similarity_row(similarities, len(node_ids))
+    log_ratio = model.log_ratio(contrast(row), capped=False)
+    p = np.exp(log_ratio - log_ratio.max())
+    p /= p.sum()
+    j = int(np.argmax(row))
+    node = plain_node_ids([node_ids[j]])[0]
+    column = {n: k for k, n in enumerate(plain_node_ids(node_ids))}
+    near = nx.single_source_shortest_path_length(graph.to_undirected(as_view=True), node_ids[j], cutoff=hops)
+    mass = float(sum(p[column[n]] for n in plain_node_ids(list(near))))
+    score = float(row[j])
+    return Localisation(node, score, mass >= confidence and score > floor, float(floor), confidence=mass,
+                        needed=float(confidence))
 
 
 def localise_goal_image(similarities: np.ndarray, node_ids: Sequence[NodeId],

@@ -252,8 +252,7 @@ def _navigate_serial(args, config):
     loaded = load_map(args.map)
     descriptor = attach_descriptor(loaded, _make_descriptor(config))
     nav = configure_thresholds(loaded, config.navigation, config.episode)
-    goal = resolve_goal(parse_goal(args.goal), loaded.topomap, descriptor, nav.thresholds,
-                        nav.localiser.goal_image_margin, nav.localiser.neighbourhood_hops)
+    goal = resolve_goal(parse_goal(args.goal), loaded.topomap, descriptor, nav)
     overrides = {k: v for k, v in (("port", args.port), ("baud", args.baud), ("camera", args.camera))
                  if v is not None}
     serial_config = replace(config.serial, **overrides)

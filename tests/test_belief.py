@@ -81,6 +81,9 @@ def test_the_likelihood_ratio_rises_with_the_score_between_far_places_and_a_cap(
     assert MODEL.log_ratio(np.array([1.5]))[0] == 0.0                 # halfway: says nothing
     assert MODEL.log_ratio(np.array([-2.0]))[0] == MODEL.log_ratio(np.array([0.0]))[0] == pytest.approx(-4.5)
     assert MODEL.log_ratio(np.array([50.0]))[0] == MODEL.log_ratio(np.array([5.0]))[0] == pytest.approx(10.5)
+    # one view on its own (a goal image): no upper cap, the better of two high scores wins
+    high = MODEL.log_ratio(np.array([5.0, 8.0]), capped=False)
+    assert high[1] > high[0] == pytest.approx(10.5)
     rng = np.random.default_rng(0)
     fitted = SimilarityModel.fit(rng.normal(3, 1, 500), rng.normal(0, 1, 500))
     assert fitted.mean_same == pytest.approx(3, abs=0.15) and fitted.std == pytest.approx(1, abs=0.1)

@@ -9,8 +9,9 @@ from typing import Optional, Union
 import cv2
 import numpy as np
 
-from controllers.config import Thresholds
-from controllers.localisation import GoalNotLocalisedError, Localisation, localise_goal_image
+from controllers.belief import LikelihoodError, SimilarityModel
+from controllers.config import NavigationConfig
+from controllers.localisation import GoalNotLocalisedError, Localisation, localise, localise_by_likelihood
 from controllers.planner import UnknownNodeError
 from descriptors.base import Descriptor, DescriptorError
 from maps.graph import TopoMap
@@ -64,13 +65,15 @@ GOAL_RIVAL_MARGIN = 0.04
 
 
 def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
-                 thresholds: Thresholds, margin: float = 0.0, hops: int = GOAL_RIVAL_HOPS) -> ResolvedGoal:
+                 navigation: NavigationConfig) -> ResolvedGoal:
     """Turn a goal (node id, image path or RGB image) into a node of the map.
 
-    A goal image is localised against every node with ``t_milestone`` (turning the robot cannot
-    help a fixed goal picture, so no match is final: :class:`GoalNotLocalisedError`). With
-    ``margin`` > 0 (``localiser.goal_image_margin``) a best node above ``t_change_node`` is
-    accepted too when every node more than ``hops`` arcs from it scores ``margin`` lower.
+    A goal image is placed against every node (turning the robot cannot help a fixed goal
+    picture, so no match is final: :class:`GoalNotLocalisedError`): with
+    ``localiser.goal_by_likelihood`` by the map's likelihood
+    (:func:`controllers.localisation.localise_by_likelihood`: the posterior mass near its best
+    node at least ``belief.confidence``, its score above ``t_lost``), else, or when the map's
+    keyframes support no likelihood, above ``t_milestone`` (the paper).
     """
     if isinstance(goal, (bool, np.bool_)):
         raise UnknownNodeError(f"goal {goal!r} is neither a node id nor an image")
@@ -90,29 +93,27 @@ def resolve_goal(goal: GoalSpec, topomap: TopoMap, descriptor: Descriptor,
     except DescriptorError as exc:
         raise GoalImageError(f"goal {source}: {exc}") from None
     row = topomap.similarities(view)
-    try:
-        found = localise_goal_image(row, topomap.node_ids, thresholds.t_milestone)
-    except GoalNotLocalisedError as exc:
-        found = _unambiguous_goal(topomap, row, thresholds, margin, hops)
-        if found is None:
-            raise GoalNotLocalisedError(f"goal {source}: {exc}" + (
-                f" (nor above t_change_node {thresholds.t_change_node:.3f} by {margin:.2f} over every node "
-                f"{hops}+ arcs away)" if margin > 0 else "")) from None
+    found = _place_goal_image(topomap, row, navigation)
+    if not found.accepted:
+        raise GoalNotLocalisedError(f"goal {source}: the goal image matches no node of the map: {found.describe()}")
     return ResolvedGoal(node=int(found.node), source=source, localisation=found, image=image,
                         rivals=_goal_rivals(topomap, int(found.node), row), descriptor=view)
 
 
-def _unambiguous_goal(topomap: TopoMap, row: np.ndarray, thresholds: Thresholds, margin: float,
-                      hops: int) -> Optional[Localisation]:
-    """The best node when it scores above ``t_change_node`` and no node more than ``hops`` arcs
-    from it comes within ``margin``; else None."""
-    if margin <= 0:
-        return None
-    k = int(np.argmax(row))
-    best, score = int(topomap.node_ids[k]), float(row[k])
-    if score <= thresholds.t_change_node or _goal_rivals(topomap, best, row, hops, margin):
-        return None
-    return Localisation(best_node=best, best_score=score, accepted=True, t_milestone=thresholds.t_milestone)
+def _place_goal_image(topomap: TopoMap, row: np.ndarray, navigation: NavigationConfig) -> Localisation:
+    """The goal image's best node, accepted or not by the configured rule."""
+    ids = [int(n) for n in topomap.node_ids]
+    thresholds = navigation.thresholds
+    if navigation.localiser.goal_by_likelihood:
+        try:
+            model = SimilarityModel.from_references(topomap.descriptors, topomap.graph, ids)
+        except LikelihoodError:
+            model = None                   # keyframes alike or too few: the paper's rule below
+        if model is not None:
+            belief = navigation.belief
+            return localise_by_likelihood(row, ids, topomap.graph, model, confidence=belief.confidence,
+                                          hops=belief.confidence_hops, floor=thresholds.t_lost)
+    return localise(row, ids, thresholds.t_milestone)
 
 
 def _goal_rivals(topomap: TopoMap, node: int, row: np.ndarray, hops: int = GOAL_RIVAL_HOPS,

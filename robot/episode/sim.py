@@ -32,6 +32,7 @@ from typing import Callable, Optional, Union
 import numpy as np
 from tqdm import tqdm
 
+from controllers.config import NavigationConfig
 from core.atomic import write_json
 from core.hal import Pose2D
 from descriptors.base import Descriptor
@@ -162,7 +163,7 @@ def _pose_dict(p: Optional[Pose2D]) -> Optional[dict]:
 
 
 def _plan_goal(episode: SimEpisode, spec: WorldSpec, loaded: LoadedMap, descriptor: Descriptor,
-               nav_thresholds) -> _GoalPlan:
+               navigation: NavigationConfig) -> _GoalPlan:
     """What the goal is, checked before the robot moves (a bad node id or an unreadable image
     file fails here)."""
     goal = parse_goal(episode.goal) if isinstance(episode.goal, str) else episode.goal
@@ -177,7 +178,7 @@ def _plan_goal(episode: SimEpisode, spec: WorldSpec, loaded: LoadedMap, descript
         return _GoalPlan(source=f"image {goal}", image=read_goal_image(goal))
     if isinstance(goal, (int, np.integer)):
         return _GoalPlan(source="node id", resolved=resolve_goal(int(goal), loaded.topomap, descriptor,
-                                                                nav_thresholds))
+                                                                navigation))
     return _GoalPlan(source="image", image=np.asarray(goal))
 
 
@@ -209,7 +210,7 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
     if episode.goal is None and episode.route is None:
         raise StartError("no goal: give --goal (node id or image file) or --route")
     start_pose, start_label = resolve_start(spec, loaded, episode.start, episode.route)
-    plan = _plan_goal(episode, spec, loaded, descriptor, nav_config.thresholds)
+    plan = _plan_goal(episode, spec, loaded, descriptor, nav_config)
     shortest = episode.shortest_length_m if episode.shortest_length_m is not None else plan.shortest_m
     budget = episode.max_steps if episode.max_steps is not None else step_budget(
         config.episode, nav_config, sim_config.control_period_s, shortest)
@@ -230,9 +231,7 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
             if plan.from_route:
                 goal_image = base.read().rgb
                 truth.teleport(start_pose)
-            resolved = plan.resolved or resolve_goal(goal_image, loaded.topomap, descriptor, nav_config.thresholds,
-                                                     nav_config.localiser.goal_image_margin,
-                                                     nav_config.localiser.neighbourhood_hops)
+            resolved = plan.resolved or resolve_goal(goal_image, loaded.topomap, descriptor, nav_config)
             goal_pose = plan.pose if plan.pose is not None else loaded.topomap.node(resolved.node).true_pose
             setup = {
                 "world": spec.name, "map": str(loaded.path), "route": episode.route, "start": start_label,
