@@ -28,6 +28,14 @@ Additions, each for a failure seen in practice:
   is the highest of the *whole map* (no other place explains the view better) and above
   ``t_lost`` (it is not a view of nothing). The rule adapts to the conditions of the day
   because it compares nodes under the same conditions instead of against a fixed level.
+* **The goal by the belief** (``goal_by_belief``, with the belief's mass at the goal node
+  passed to :meth:`NodeSwitchSupervisor.tick`). Once the robot has left L_i (APPROACHING),
+  the goal node inside the window is also confirmed when the belief over the map holds at
+  least ``belief.confidence`` of its mass at it: its views have matched the goal's stretch of route, in the order and at the distances
+  the odometry drove, better than any other place. Nodes before the goal that the views miss
+  are confirmed by later ones; nothing lies after the goal, and a robot whose goal node never
+  passes by score drove past it and was lost a node later. The settle that follows decides
+  where to stop, as after any confirmation.
 * **Lost.** When the best filtered score inside the window stays below ``t_lost`` while some
   node outside the window scores higher (the view shows another place, not merely a poor view
   of this one) for ``lost_patience_ticks`` ticks, or no node is confirmed for
@@ -185,13 +193,14 @@ class NodeSwitchSupervisor:
                      min(last, self._index + cfg.window_ahead) + 1)
 
     def tick(self, similarities: np.ndarray, goal_score: Optional[float] = None,
-             travelled_m: Optional[float] = None) -> SupervisorDecision:
+             travelled_m: Optional[float] = None, goal_mass: Optional[float] = None) -> SupervisorDecision:
         """Filter one similarity row (current view against every node) and decide.
 
         ``goal_score``: the view's similarity to the goal image, when the goal is an image (see
         :meth:`_image_arrival`). ``travelled_m``: the distance the odometry has driven so far
         (metres along the robot's heading, less when reversing; any fixed origin), for driving
-        on by odometry."""
+        on by odometry. ``goal_mass``: the belief's probability mass at the goal node (the
+        path's last node), for confirming the goal by the belief."""
         row = similarity_row(similarities, len(self.node_ids))
         if travelled_m is not None:
             if not math.isfinite(travelled_m):
@@ -222,6 +231,9 @@ class NodeSwitchSupervisor:
             return self._settle_at_goal(path_scores)
         here = float(path_scores[self._index])
         ahead = self._confirmable_ahead(path_scores, here)
+        by_belief = ahead is None and self._goal_by_belief(goal_mass)
+        if by_belief:
+            ahead = last
         if ahead is not None:
             passed = self.path[self._index + 1:ahead]
             confirmed = self.path[ahead]
@@ -230,7 +242,9 @@ class NodeSwitchSupervisor:
             if travelled_m is not None:
                 self._at_node_m = self._at_sight_m = float(travelled_m)
             score = float(path_scores[ahead])
-            reason = (f"reached node {confirmed!r}: filtered {score:.3f} > t_milestone "
+            reason = (f"reached node {confirmed!r}: the belief holds {goal_mass:.2f} of its mass there "
+                      f"(>= confidence {self.config.belief.confidence:g}; filtered {score:.3f})" if by_belief else
+                      f"reached node {confirmed!r}: filtered {score:.3f} > t_milestone "
                       f"{thresholds.t_milestone:.3f}" if score > thresholds.t_milestone else
                       f"reached node {confirmed!r}: filtered {score:.3f} is the best of the map "
                       f"(> t_lost {thresholds.t_lost:.3f})")
@@ -402,6 +416,15 @@ class NodeSwitchSupervisor:
         if self._state is SupervisorState.LEAVING and score <= here:
             return None
         return first + k
+
+    def _goal_by_belief(self, goal_mass: Optional[float]) -> bool:
+        """Whether the belief confirms the goal node this tick (see the module docstring)."""
+        if not self.config.supervisor.goal_by_belief or goal_mass is None:
+            return False
+        if not math.isfinite(goal_mass):
+            raise ValueError(f"goal_mass must be finite, got {goal_mass!r}")
+        return (goal_mass >= self.config.belief.confidence and self._state is SupervisorState.APPROACHING
+                and len(self.path) - 1 < self.window().stop)
 
     def _decision(self, state: SupervisorState, path_scores: np.ndarray,
                   confirmed: Optional[NodeId], reason: str) -> SupervisorDecision:

@@ -933,3 +933,20 @@ def test_where_the_views_match_nothing_the_robot_drives_on_along_the_maps_headin
     plain = _views_lost_on_a_chain(None)
     assert not any(s.supervisor is not None and s.supervisor.driving_on for s in plain)
     assert plain[-1].state is NavState.RELOCALISING and len(plain) < len(steps) and plain[-1].visited_nodes == (0,)
+
+
+def test_the_belief_at_the_goal_node_confirms_it_when_its_view_never_passes():
+    """The navigator hands the belief's mass at the goal node to the node switching: a goal
+    node whose view scores below every confirmation rule is reached all the same."""
+    graph, poses = chain(3)
+    nav = Navigator(graph, sorted(poses), 2, _belief_config("initial", hold=0))
+    th = nav.config.thresholds
+    placed = nav.tick(np.array([0.2, 0.9, 0.3]), heading_rad=0.0, belief=_snapshot(1, 0.95))
+    assert placed.state is NavState.NAVIGATING and placed.current_node == 1
+    weak = np.array([th.t_lost + 0.1, th.t_change_node - 0.1, th.t_lost + 0.02])   # node 1 left; 2 never passes
+    ahead = np.tile([0.3, 0.6, 0.3], (3, 1))                                      # the thirds: straight on
+    steps = [nav.tick(weak, ahead, heading_rad=0.0, belief=_snapshot(1, 0.9)) for _ in range(40)]
+    assert all(s.state is NavState.NAVIGATING for s in steps)
+    steps = [nav.tick(weak, ahead, heading_rad=0.0, belief=_snapshot(2, 0.9)) for _ in range(40)]
+    assert steps[-1].state is NavState.ARRIVED
+    assert "the belief holds 0.90 of its mass there" in steps[-1].reason

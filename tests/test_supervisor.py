@@ -344,6 +344,34 @@ def test_a_goal_image_that_never_matches_well_leaves_arrival_to_the_goal_node():
     assert "settled" in ds[states.index(SupervisorState.GOAL_REACHED)].reason
 
 
+def test_the_belief_confirms_a_goal_node_whose_view_never_passes():
+    """Under the day's light the goal node's view scores below every confirmation rule; the
+    belief, holding its mass there, confirms it, and the settle decides arrival as after any
+    confirmation (before: the robot drove past the goal and was lost a node later)."""
+    weak = row(5, n1=0.4, n2=TH.t_lost + 0.02, n4=TH.t_lost + 0.1)   # another place scores higher
+    sup = _at_the_node_before_the_goal()
+    assert all(sup.tick(weak, goal_mass=0.59).confirmed_node is None for _ in range(3))
+    d = sup.tick(weak, goal_mass=CONFIG.belief.confidence)
+    assert d.state is not SupervisorState.GOAL_REACHED
+    assert "goal in sight: reached node 2: the belief holds 0.60 of its mass there" in d.reason
+    ds = [sup.tick(weak, goal_mass=0.9) for _ in range(IMAGE.supervisor.goal_settle_ticks)]
+    assert ds[-1].state is SupervisorState.GOAL_REACHED and "settled" in ds[-1].reason
+    off = _at_the_node_before_the_goal(replace(IMAGE, supervisor=replace(IMAGE.supervisor, goal_by_belief=False)))
+    assert all(off.tick(weak, goal_mass=1.0).state is SupervisorState.APPROACHING for _ in range(10))
+
+
+def test_the_belief_confirms_the_goal_only_once_the_node_before_it_is_left():
+    sup = NodeSwitchSupervisor([0, 1, 2], range(5), IMAGE)
+    feed(sup, [row(5, n0=0.85, n1=0.3)] * 3 + [row(5, n0=0.5, n1=0.5)] * 2)
+    d = sup.tick(row(5, n0=0.4, n1=TH.t_milestone + 0.05), goal_mass=0.9)
+    assert d.confirmed_node == 1 and d.state is SupervisorState.LEAVING
+    d = sup.tick(row(5, n1=TH.t_milestone + 0.05, n2=0.3), goal_mass=0.9)   # still at node 1's view
+    assert d.state is SupervisorState.LEAVING and d.confirmed_node is None
+    with pytest.raises(ValueError, match="goal_mass must be finite"):
+        feed(sup, [row(5, n1=TH.t_change_node - 0.05, n2=0.3)] * 2)
+        sup.tick(row(5, n2=0.3), goal_mass=math.nan)
+
+
 def test_goal_image_arrival_off_ignores_the_goal_image():
     config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, goal_image_arrival=False))
     with_image, without = _at_the_node_before_the_goal(config), _at_the_node_before_the_goal(config)
