@@ -345,7 +345,9 @@ class NodeSwitchSupervisor:
         node's place); while it has not (the node was confirmed as the best of the map, which
         can happen a metre short), the goal node must settle too. The node alone stops up to
         half an arc from the goal; the image alone stopped a metre short when a turn lowered its
-        score there.
+        score there. A goal image below ``t_milestone`` does not decide, but the settled node
+        waits while it still sets new highs (within ``goal_settle_ticks``): the robot is
+        closing in on the place it shows.
         """
         last = len(self.path) - 1
         score = float(path_scores[last])
@@ -359,16 +361,21 @@ class NodeSwitchSupervisor:
         self._image_settled = self._image_settled or self._image_arrival()
         image_in_play = self._image_peak is not None and self._image_peak > self.config.thresholds.t_milestone
         at_node = self._goal_peak > self.config.thresholds.t_milestone
-        if (self._image_settled and (at_node or self._node_settled)) or (self._node_settled and not image_in_play):
+        # below t_milestone the goal image does not decide, but while it still sets new highs the
+        # robot is closing in on the place it shows: the node alone stopped a metre short there
+        image_rising = (not image_in_play and self._image_peak is not None
+                        and self._image_flat < cfg.goal_settle_ticks)
+        if (self._image_settled and (at_node or self._node_settled)) or (
+                self._node_settled and not image_in_play and not image_rising):
             why = "; ".join(w for w in (self._node_settled, self._image_settled) if w)
             return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[last],
                                 f"{self._goal_reason}; {why}")
         node = (self._node_settled or f"filtered {score:.3f}, peak {self._goal_peak:.3f}, "
                 f"{self._goal_flat}/{cfg.goal_settle_ticks} ticks without improving")
-        image = ("" if not image_in_play else "; the goal image " + (
+        image = ("" if not (image_in_play or image_rising) else "; the goal image " + (
             "settled" if self._image_settled else
             f"scores {self._image:.3f}, peak {self._image_peak:.3f}, {self._image_flat}/{cfg.goal_settle_ticks} "
-            "ticks without improving"))
+            "ticks without improving" + ("" if image_in_play else " (below t_milestone, still rising)")))
         return self._decision(self._state, path_scores, None, f"goal in sight: {node}{image}")
 
     def _image_arrival(self) -> str:

@@ -372,6 +372,23 @@ def test_the_belief_confirms_the_goal_only_once_the_node_before_it_is_left():
         sup.tick(row(5, n2=0.3), goal_mass=math.nan)
 
 
+def test_a_settled_goal_node_waits_while_the_goal_image_still_rises_below_t_milestone():
+    """Confirmed a metre short, the goal node's score falls at once, while the goal image's,
+    still below t_milestone, rises as the robot closes in: no arrival until it stops rising."""
+    sup = _at_the_node_before_the_goal()
+    settle = IMAGE.supervisor.goal_settle_ticks
+    low = TH.t_milestone - 0.3
+    d = sup.tick(row(5, n1=0.4, n2=TH.t_milestone + 0.05), goal_score=low)              # confirmed
+    assert "goal in sight" in d.reason
+    falling_node = row(5, n1=0.4, n2=TH.t_milestone)                                     # settles at once
+    rising = [sup.tick(falling_node, goal_score=low + 0.01 * k) for k in range(1, 3 * settle)]
+    assert all(d.state is not SupervisorState.GOAL_REACHED for d in rising)
+    assert "settled at filtered" in rising[-1].reason and "still rising" in rising[-1].reason
+    flat = [sup.tick(falling_node, goal_score=low + 0.01 * (3 * settle - 1)) for _ in range(settle)]
+    assert [d.state for d in flat].count(SupervisorState.GOAL_REACHED) == 1
+    assert flat[-1].state is SupervisorState.GOAL_REACHED and "the goal image" not in flat[-1].reason
+
+
 def test_goal_image_arrival_off_ignores_the_goal_image():
     config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, goal_image_arrival=False))
     with_image, without = _at_the_node_before_the_goal(config), _at_the_node_before_the_goal(config)
