@@ -31,8 +31,8 @@ Additions, each for a failure seen in practice:
 * **The goal by the belief** (``goal_by_belief``, with the belief's mass at the goal node
   passed to :meth:`NodeSwitchSupervisor.tick`). Once the robot has left L_i (APPROACHING),
   the goal node inside the window is also confirmed when the belief over the map holds at
-  least ``belief.confidence`` of its mass at it: its views have matched the goal's stretch of route, in the order and at the distances
-  the odometry drove, better than any other place. Nodes before the goal that the views miss
+  least ``belief.confidence`` of its mass at it: its views have matched the goal's stretch of
+  route, in the order and at the distances the odometry drove, better than any other place. Nodes before the goal that the views miss
   are confirmed by later ones; nothing lies after the goal, and a robot whose goal node never
   passes by score drove past it and was lost a node later. The settle that follows decides
   where to stop, as after any confirmation.
