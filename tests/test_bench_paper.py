@@ -87,6 +87,8 @@ def test_the_harness_writes_results_table_and_pictures(serial_run):
     assert [(e["trial"]["method"], e["trial"]["sparsity"]) for e in episodes] == \
         [("ours", None), ("sptm", None), ("ours", 0.75)]
     main, baseline = episodes[0], episodes[1]
+    from robot.settings import load_stack_config
+    assert load_stack_config(out / "config.yaml") == load_stack_config(None)    # what replay runs with
     # both methods faced the same start and conditions
     for key in ("start_x_m", "start_y_m", "start_yaw_deg", "appearance_seed", "shortest_length_m"):
         assert main["trial"][key] == baseline["trial"][key]

@@ -8,6 +8,8 @@ the map sparsity study.
 
 What it does, in ``--out`` (default ``runs/paper``):
 
+0. ``config.yaml``: the configuration the episodes run with, every field resolved (what
+   ``bench replay`` reads unless told another).
 1. ``maps/``: for each world, one mapping walkthrough (appearance 0, the stack config's
    teleoperator) and a map per sparsity level needed; existing maps are reused.
 2. ``baseline/sptm_head.pt``: the SPTM-style baseline's action head, trained on expert drives
@@ -50,6 +52,7 @@ from robot.bench.trials import (
     plan_trials,
     portable_trial,
     step_log_path,
+    write_run_config,
 )
 
 DEFAULT_ROUTES = ("hospital:easy", "hospital:moderate", "hospital:hard", "office:main")
@@ -299,6 +302,12 @@ def main(args: argparse.Namespace) -> int:
 
     out: Path = args.out
     progress = not args.quiet
+    if not args.report_only:
+        try:         # before any work: an --out that cannot be written is told at once
+            write_run_config(out, config)
+        except OSError as exc:
+            print(f"error: --out {out}: cannot write the run's configuration there: {exc}", file=sys.stderr)
+            return 2
     default_sparsity = float(config.mapping.sparsity)
     config_path = None if args.config is None else str(args.config)
     runner = None

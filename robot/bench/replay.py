@@ -12,7 +12,8 @@ robot saw (``<episode>.views.npz``: the view's similarity to every node and the 
 ``--rerun-save FILE.rrd`` the Rerun viewer's timeline (:mod:`robot.viewer`). It prints the episode's events (localised, node
 reached, lost, searching, ...) and whether the replay reproduced the recorded episode (same
 steps, end, success, final distance, re-localisations): the runs are deterministic, so a
-difference means the code or the configuration changed since.
+difference means the code or the configuration changed since. The configuration is the run
+folder's ``config.yaml`` (every field, as the harness ran it) unless ``--config`` names another.
 
 Episode files name their map relative to the run folder, so a run folder replays wherever it
 lies. A map that is not there (a committed run holds no maps) is built again into the run folder
@@ -50,7 +51,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--video", type=Path, default=None, help="also write an MP4 of the camera with overlays")
     parser.add_argument("--trace", type=Path, default=None, help="also write the top-down trace picture here")
     parser.add_argument("--config", type=Path, default=None,
-                        help="stack config YAML (default configs/default.yaml; the paper run's --config if it had one)")
+                        help="stack config YAML (default: the run folder's config.yaml, the configuration the "
+                             "harness ran with; configs/default.yaml for a run without one)")
     parser.add_argument("--events", type=int, default=40, help="print the last N events (default 40; 0: none)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_viewer_arguments(parser)
@@ -84,6 +86,15 @@ def load_episode(path: Path):
 def run_folder(episode: Path) -> Path:
     """The run folder of an episode file (``RUN/episodes/<episode>.json``)."""
     return Path(episode).resolve().parent.parent
+
+
+def replay_config(episode: Path, given: Optional[Path]) -> Optional[Path]:
+    """The configuration file to replay with: ``given`` (``--config``), else the run folder's
+    record of the one it ran with, else None (configs/default.yaml)."""
+    from robot.bench.trials import RUN_CONFIG
+
+    record = run_folder(episode) / RUN_CONFIG
+    return given if given is not None else (record if record.is_file() else None)
 
 
 def locate_inputs(trial, run: Path, config, progress: bool):
@@ -192,6 +203,7 @@ def main(args: argparse.Namespace) -> int:
     from robot.bench.trials import config_digest
     from robot.settings import load_stack_config
 
+    args.config = replay_config(args.episode, args.config)
     try:
         config = load_stack_config(args.config)
     except ConfigError as exc:

@@ -33,6 +33,9 @@ APPEARANCE_SEED_BASE = 1
 #: Keep every n-th true pose in the results (trajectory plots); 10 = once per simulated second.
 TRAJECTORY_EVERY = 10
 
+#: The run folder's record of the configuration (:func:`write_run_config`).
+RUN_CONFIG = "config.yaml"
+
 #: "ours": the two-cycle voter with the configuration as given; "sptm": the learned baseline;
 #: "paper": the paper's method as published (NavigationConfig.as_published, raw-cosine thirds);
 #: "ours-hints" / "ours-no-hints": ours with the turn hints from the map's odometry forced on / off
@@ -111,6 +114,19 @@ def config_digest(config) -> str:
     reuse episodes made with the old one, and a replay can tell that the configuration changed."""
     text = json.dumps(asdict(config), sort_keys=True, default=repr)
     return hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+
+
+def write_run_config(out: Path, config) -> Path:
+    """Write the configuration a run's episodes run with into the run folder (``config.yaml``),
+    every field resolved: a default changed later does not change what the run replays with."""
+    import yaml
+
+    from core.atomic import write_text
+
+    header = ("# The configuration this run's episodes ran with, every field (written by python -m robot.bench "
+              "paper;\n# python -m robot.bench replay reads it when no --config is given).\n")
+    Path(out).mkdir(parents=True, exist_ok=True)
+    return write_text(Path(out) / RUN_CONFIG, header + yaml.safe_dump(asdict(config), sort_keys=False))
 
 
 def trial_rng(seed: int, world: str, route: str, trial: int) -> np.random.Generator:
