@@ -302,12 +302,6 @@ def main(args: argparse.Namespace) -> int:
 
     out: Path = args.out
     progress = not args.quiet
-    if not args.report_only:
-        try:         # before any work: an --out that cannot be written is told at once
-            write_run_config(out, config)
-        except OSError as exc:
-            print(f"error: --out {out}: cannot write the run's configuration there: {exc}", file=sys.stderr)
-            return 2
     default_sparsity = float(config.mapping.sparsity)
     config_path = None if args.config is None else str(args.config)
     runner = None
@@ -318,6 +312,11 @@ def main(args: argparse.Namespace) -> int:
         return 2
     try:
         build = not args.report_only
+        if build:    # before the maps: an --out that cannot be written is told at once
+            try:
+                write_run_config(out, config)
+            except OSError as exc:
+                raise PaperBenchError(f"--out {out}: cannot write the run's configuration there: {exc}") from exc
         maps = {world: ensure_map(world, default_sparsity, config, out, progress, build) for world, _ in routes}
         if "ours-hints" in methods or ("ours" in methods and config.navigation.heading_hints):
             from maps.store import load_map
