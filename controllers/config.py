@@ -570,7 +570,7 @@ class NavigationConfig:
     #: navigation alike: ``odometry`` (the wheels' yaw) or ``gyro`` (the gyro's yaw rate
     #: integrated; a wheel scrubbing along a wall turns the wheels' yaw, not the gyro's). The
     #: belief keeps the wheel odometry's. A map made before gyro headings were kept has none:
-    #: rebuild it for ``gyro``.
+    #: it is navigated on the wheels' (with a note; rebuild it for the gyro's).
     heading_source: str = "odometry"
 
     def __post_init__(self) -> None:

@@ -1,14 +1,19 @@
 """The gyro's heading (core/yaw_rate.py) and the run loop's heading from it."""
 
 import math
+from dataclasses import replace
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from controllers.config import NavigationConfig
 from core.hal import Odometry, SensorFrame
 from core.yaw_rate import YawRateIntegrator
 from maps.graph import MapError, TopoMap
 from robot.episode.loop import _Heading, navigation_headings
+from robot.episode.setup import configure_heading
 
 
 def test_a_rate_is_integrated_by_the_trapezoid_rule():
@@ -53,3 +58,24 @@ def test_navigation_takes_the_maps_headings_of_its_source_or_refuses():
     for k in range(3):
         graph_map.set_gyro_yaw(k, -0.1 * k)
     assert navigation_headings(graph_map, "gyro") == {0: 0.0, 1: -0.1, 2: -0.2}
+
+
+def test_a_map_without_gyro_headings_navigates_on_the_wheels_with_a_note():
+    """``heading_source: gyro`` on a map recorded before gyro headings were kept: both the map's
+    and the robot's heading come from the wheel odometry, and the note names the map."""
+    graph_map = TopoMap(4)
+    for k in range(3):
+        graph_map.add_node(np.eye(4)[k], k, 0.2 * k)
+    loaded = SimpleNamespace(path=Path("maps/old"), topomap=graph_map)
+    gyro = NavigationConfig(heading_source="gyro")
+    assert configure_heading(loaded, gyro) == (gyro, None)                  # a video's map: no headings at all
+    for k in range(3):
+        graph_map.set_odom_yaw(k, 0.1 * k)
+    used, note = configure_heading(loaded, gyro)
+    assert used.heading_source == "odometry" and used == replace(gyro, heading_source="odometry")
+    assert "maps/old has no gyro headings" in note and "rebuild" in note
+    for k in range(3):
+        graph_map.set_gyro_yaw(k, -0.1 * k)
+    assert configure_heading(loaded, gyro) == (gyro, None)
+    wheels = NavigationConfig(heading_source="odometry")
+    assert configure_heading(loaded, wheels) == (wheels, None)

@@ -4,7 +4,8 @@
   map built with another descriptor (:class:`DescriptorMismatchError`);
 * :func:`derive_thresholds` derives the navigation thresholds from the map's own statistics,
   placed by ``navigation.threshold_fractions``; :func:`configure_thresholds` applies them unless
-  ``episode.thresholds_from_map`` is false (then ``navigation.thresholds`` are used as written).
+  ``episode.thresholds_from_map`` is false (then ``navigation.thresholds`` are used as written);
+* :func:`configure_heading` keeps ``navigation.heading_source`` unless the map lacks its headings.
 """
 
 from __future__ import annotations
@@ -119,3 +120,16 @@ def configure_thresholds(loaded_map: LoadedMap, navigation: NavigationConfig,
         return navigation
     return replace(navigation, thresholds=derive_thresholds(loaded_map, navigation,
                                                             thirds_contrast=episode.thirds_contrast))
+
+
+def configure_heading(loaded_map: LoadedMap, navigation: NavigationConfig) -> tuple[NavigationConfig, Optional[str]]:
+    """``navigation`` with the heading source the episode uses, and a note when it is not the
+    configured one: a map recorded before gyro headings were kept navigates on the wheel
+    odometry's, since the map's and the robot's headings must come from one source."""
+    topomap = loaded_map.topomap
+    source = navigation.heading_source
+    if source == "odometry" or topomap.headings(source) is not None or topomap.odom_headings is None:
+        return navigation, None
+    note = (f"the map {loaded_map.path} has no {source} headings (made before they were kept): the heading "
+            "comes from the wheel odometry; rebuild the map from its recording to use the gyro's")
+    return replace(navigation, heading_source="odometry"), note
