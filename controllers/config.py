@@ -187,11 +187,17 @@ class SupervisorConfig:
     #: picture does: that picture was taken up to half an arc from the goal. False: the goal
     #: node's score alone decides arrival.
     goal_image_arrival: bool = True
-    #: Not in the paper. The goal node inside the window is also confirmed when the belief
-    #: over the map holds ``belief.confidence`` of its mass at it: a goal node whose view
+    #: Not in the paper. The goal node, once it is the target, is also confirmed when the
+    #: belief over the map holds ``belief.confidence`` of its mass at it: a goal node whose view
     #: never passes under the day's light is otherwise driven past (nothing after the goal
     #: confirms it). False: its score alone (the paper).
     goal_by_belief: bool = True
+    #: Not in the paper. The settled goal node waits while the belief's mode is a path node
+    #: before the goal, for at most the goal's incoming arc of driving since its confirmation:
+    #: a node confirmed as the best of the map can be a metre short, where the belief, which
+    #: has the odometry since the previous nodes, still places the robot. False: the scores
+    #: alone settle.
+    goal_waits_for_belief: bool = True
     #: Not in the paper. When the window has been below ``t_lost`` for ``lost_patience_ticks``
     #: (the views match no node near the plan), the robot drives on by odometry instead of
     #: re-localising: the target counts as reached once the robot has driven the arc's mapped
@@ -210,6 +216,7 @@ class SupervisorConfig:
         check_bool("confirm_best_of_map", self.confirm_best_of_map)
         check_bool("goal_image_arrival", self.goal_image_arrival)
         check_bool("goal_by_belief", self.goal_by_belief)
+        check_bool("goal_waits_for_belief", self.goal_waits_for_belief)
         check_range("odometry_max_m", self.odometry_max_m, 0.0, 100.0, what="a distance in metres")
 
 
@@ -599,7 +606,8 @@ class NavigationConfig:
                               relocalise_heading_tolerance_deg=180.0, from_belief="off",
                               compass_bandwidth_deg=0.0),
             supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0,
-                               goal_image_arrival=False, goal_by_belief=False, odometry_max_m=0.0),
+                               goal_image_arrival=False, goal_by_belief=False, goal_waits_for_belief=False,
+                               odometry_max_m=0.0),
             recovery=replace(self.recovery, enabled=False), turn_room=replace(self.turn_room, enabled=False),
             heading_guard=replace(self.heading_guard, enabled=False),
             hold_action_between_votes=False, blind_forward_ticks=0, heading_hints=False)

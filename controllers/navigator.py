@@ -598,7 +598,8 @@ class Navigator:
                        goal_score: Optional[float] = None, stalled: bool = False,
                        travelled_m: Optional[float] = None) -> NavigationStep:
         goal_mass = None if self._belief is None else dict(self._belief.top).get(self.goal_node, 0.0)
-        decision = self._supervisor.tick(row, goal_score=goal_score, travelled_m=travelled_m, goal_mass=goal_mass)
+        decision = self._supervisor.tick(row, goal_score=goal_score, travelled_m=travelled_m, goal_mass=goal_mass,
+                                         belief_mode=None if self._belief is None else self._belief.mode)
         if decision.confirmed_node is not None:
             self._confirmed(decision.confirmed_node, heading_rad, seen=not decision.by_odometry)
         if decision.state is SupervisorState.GOAL_REACHED:

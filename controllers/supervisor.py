@@ -29,10 +29,11 @@ Additions, each for a failure seen in practice:
   ``t_lost`` (it is not a view of nothing). The rule adapts to the conditions of the day
   because it compares nodes under the same conditions instead of against a fixed level.
 * **The goal by the belief** (``goal_by_belief``, with the belief's mass at the goal node
-  passed to :meth:`NodeSwitchSupervisor.tick`). Once the robot has left L_i (APPROACHING),
-  the goal node inside the window is also confirmed when the belief over the map holds at
+  passed to :meth:`NodeSwitchSupervisor.tick`). Once the robot has left L_i (APPROACHING)
+  for the goal node (the target), the goal node is also confirmed when the belief over the map holds at
   least ``belief.confidence`` of its mass at it: its views have matched the goal's stretch of
-  route, in the order and at the distances the odometry drove, better than any other place. Nodes before the goal that the views miss
+  route, in the order and at the distances the odometry drove, better than any other place. Only
+  the target: from further back it skipped nodes and stopped short. Nodes before the goal that the views miss
   are confirmed by later ones; nothing lies after the goal, and a robot whose goal node never
   passes by score drove past it and was lost a node later. The settle that follows decides
   where to stop, as after any confirmation.
@@ -150,6 +151,9 @@ class NodeSwitchSupervisor:
         self._goal_peak: Optional[float] = None
         self._goal_flat = 0
         self._goal_reason = ""
+        self._goal_seen_m: Optional[float] = None   # odometry distance at the goal's confirmation
+        self._belief_mode: Optional[NodeId] = None   # this tick's belief mode and distance driven
+        self._travelled_m: Optional[float] = None
         # the goal image's filtered score and its peak during the final approach (image goals)
         self._image_filter = SimilarityFilter(1, config.filter)
         self._image: Optional[float] = None
@@ -193,14 +197,17 @@ class NodeSwitchSupervisor:
                      min(last, self._index + cfg.window_ahead) + 1)
 
     def tick(self, similarities: np.ndarray, goal_score: Optional[float] = None,
-             travelled_m: Optional[float] = None, goal_mass: Optional[float] = None) -> SupervisorDecision:
+             travelled_m: Optional[float] = None, goal_mass: Optional[float] = None,
+             belief_mode: Optional[NodeId] = None) -> SupervisorDecision:
         """Filter one similarity row (current view against every node) and decide.
 
         ``goal_score``: the view's similarity to the goal image, when the goal is an image (see
         :meth:`_image_arrival`). ``travelled_m``: the distance the odometry has driven so far
         (metres along the robot's heading, less when reversing; any fixed origin), for driving
         on by odometry. ``goal_mass``: the belief's probability mass at the goal node (the
-        path's last node), for confirming the goal by the belief."""
+        path's last node), for confirming the goal by the belief. ``belief_mode``: the belief's
+        most probable node (None: no belief), for the settled goal's wait (see
+        :meth:`_settle_at_goal`)."""
         row = similarity_row(similarities, len(self.node_ids))
         if travelled_m is not None:
             if not math.isfinite(travelled_m):
@@ -208,6 +215,7 @@ class NodeSwitchSupervisor:
             if self._at_node_m is None:
                 self._at_node_m = self._at_sight_m = float(travelled_m)
         filtered = self.filter.update(row)
+        self._belief_mode, self._travelled_m = belief_mode, travelled_m
         if goal_score is not None and self.config.supervisor.goal_image_arrival:
             score = float(goal_score)
             if not np.isfinite(score):
@@ -258,6 +266,7 @@ class NodeSwitchSupervisor:
                 self._index = last - 1
                 self._state = SupervisorState.APPROACHING
                 self._goal_peak, self._goal_flat, self._goal_reason = score, 0, "goal " + reason
+                self._goal_seen_m = travelled_m
                 return self._decision(self._state, path_scores, None,
                                       f"goal in sight: {reason}; driving on while it improves")
         elif self._state is SupervisorState.LEAVING and here < thresholds.t_change_node:
@@ -347,7 +356,11 @@ class NodeSwitchSupervisor:
         half an arc from the goal; the image alone stopped a metre short when a turn lowered its
         score there. A goal image below ``t_milestone`` does not decide, but the settled node
         waits while it still sets new highs (within ``goal_settle_ticks``): the robot is
-        closing in on the place it shows.
+        closing in on the place it shows. Without a goal image in play, the settled node also
+        waits (``goal_waits_for_belief``) while the belief's mode is a path node before the goal,
+        for at most the goal's incoming arc of driving since its confirmation: a node confirmed
+        as the best of the map can be a metre short, where the belief, which has the odometry
+        since the previous nodes, still places the robot.
         """
         last = len(self.path) - 1
         score = float(path_scores[last])
@@ -365,8 +378,9 @@ class NodeSwitchSupervisor:
         # robot is closing in on the place it shows: the node alone stopped a metre short there
         image_rising = (not image_in_play and self._image_peak is not None
                         and self._image_flat < cfg.goal_settle_ticks)
+        short = "" if image_in_play else self._belief_short()
         if (self._image_settled and (at_node or self._node_settled)) or (
-                self._node_settled and not image_in_play and not image_rising):
+                self._node_settled and not image_in_play and not image_rising and not short):
             why = "; ".join(w for w in (self._node_settled, self._image_settled) if w)
             return self._finish(SupervisorState.GOAL_REACHED, path_scores, self.path[last],
                                 f"{self._goal_reason}; {why}")
@@ -376,7 +390,20 @@ class NodeSwitchSupervisor:
             "settled" if self._image_settled else
             f"scores {self._image:.3f}, peak {self._image_peak:.3f}, {self._image_flat}/{cfg.goal_settle_ticks} "
             "ticks without improving" + ("" if image_in_play else " (below t_milestone, still rising)")))
-        return self._decision(self._state, path_scores, None, f"goal in sight: {node}{image}")
+        return self._decision(self._state, path_scores, None, f"goal in sight: {node}{image}{short}")
+
+    def _belief_short(self) -> str:
+        """Why the settled goal waits for the belief (see :meth:`_settle_at_goal`), or ""."""
+        last = len(self.path) - 1
+        if not (self.config.supervisor.goal_waits_for_belief and self._belief_mode in self.path[:last]
+                and self._travelled_m is not None and self._goal_seen_m is not None and self._arcs is not None):
+            return ""
+        arc = self._arcs.get((self.path[last - 1], self.path[last]))
+        driven = self._travelled_m - self._goal_seen_m
+        if arc is None or not driven < arc:
+            return ""
+        return (f"; the belief still places the robot at node {self._belief_mode!r}, before the goal "
+                f"(drove {driven:.2f} of the goal arc's {arc:.2f} m since its confirmation)")
 
     def _image_arrival(self) -> str:
         """Whether the view has passed the place the goal image shows (a reason), or "".
@@ -431,7 +458,7 @@ class NodeSwitchSupervisor:
         if not math.isfinite(goal_mass):
             raise ValueError(f"goal_mass must be finite, got {goal_mass!r}")
         return (goal_mass >= self.config.belief.confidence and self._state is SupervisorState.APPROACHING
-                and len(self.path) - 1 < self.window().stop)
+                and self._index + 1 == len(self.path) - 1)
 
     def _decision(self, state: SupervisorState, path_scores: np.ndarray,
                   confirmed: Optional[NodeId], reason: str) -> SupervisorDecision:

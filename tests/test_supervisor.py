@@ -372,6 +372,53 @@ def test_the_belief_confirms_the_goal_only_once_the_node_before_it_is_left():
         sup.tick(row(5, n2=0.3), goal_mass=math.nan)
 
 
+def test_the_belief_confirms_the_goal_only_as_the_target():
+    """With the goal two nodes ahead inside the window, the belief's mass there confirms nothing
+    (a garage run skipped two nodes that way and stopped 1.5 m short); once the node before the
+    goal is reached, it does."""
+    sup = NodeSwitchSupervisor([0, 1, 2, 3], range(6), IMAGE)
+    feed(sup, [row(6, n0=0.85, n1=0.3)] * 3 + [row(6, n0=0.5, n1=0.4)] * 2)
+    weak = row(6, n0=0.4, n1=0.4, n3=TH.t_lost + 0.02, n5=TH.t_lost + 0.1)
+    assert 3 in sup.window() and sup.target_node == 1
+    ds = [sup.tick(weak, goal_mass=0.9) for _ in range(3)]
+    assert all(d.confirmed_node is None and "goal in sight" not in d.reason for d in ds)
+    feed(sup, [row(6, n1=TH.t_milestone + 0.05)] + [row(6, n1=TH.t_change_node - 0.05, n2=0.3)] * 2)
+    feed(sup, [row(6, n2=TH.t_milestone + 0.05)] + [row(6, n2=TH.t_change_node - 0.05, n3=0.3)] * 2)
+    assert sup.target_node == 3
+    assert "the belief holds 0.90 of its mass there" in sup.tick(weak, goal_mass=0.9).reason
+
+
+def _settled_short(mode, driven_m, wait=True):
+    """A goal node confirmed as the best of the map whose score then stays flat while the robot
+    drives ``driven_m`` (in 20 ticks) with the belief's mode at ``mode``: the decisions."""
+    config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, confirm_best_of_map=True,
+                                                goal_waits_for_belief=wait))
+    sup = NodeSwitchSupervisor([0, 1, 2], range(5), config, arc_lengths_m=ARCS_1M)
+    feed(sup, [row(5, n0=0.85, n1=0.3)] * 3 + [row(5, n0=0.5, n1=0.5)] * 2)
+    sup.tick(row(5, n0=0.4, n1=TH.t_milestone + 0.05), travelled_m=0.0)
+    feed(sup, [row(5, n1=TH.t_change_node - 0.05, n2=0.3)] * 2)
+    weak = row(5, n1=0.3, n2=TH.t_lost + 0.05)          # the best of the map, below t_milestone
+    d = sup.tick(weak, travelled_m=0.5, belief_mode=1)
+    assert "goal in sight" in d.reason
+    return [sup.tick(weak, travelled_m=0.5 + driven_m * (k + 1) / 20, belief_mode=mode) for k in range(20)]
+
+
+def test_a_settled_goal_node_waits_while_the_belief_places_the_robot_before_it():
+    """Confirmed as the best of the map a metre short, the goal node's score stays flat; the
+    belief, still at the node before the goal, holds the arrival for up to the goal's arc."""
+    settle = IMAGE.supervisor.goal_settle_ticks
+    at_goal = _settled_short(mode=2, driven_m=0.5)
+    assert at_goal[settle - 1].state is SupervisorState.GOAL_REACHED   # the mode agrees: as before
+    short = _settled_short(mode=1, driven_m=2.0)                        # 0.1 m per tick
+    states = [d.state for d in short]
+    assert states.index(SupervisorState.GOAL_REACHED) == 9             # after the goal's 1 m arc
+    assert "the belief still places the robot at node 1, before the goal" in short[settle].reason
+    beyond = _settled_short(mode=3, driven_m=0.5)                       # past the goal, off the path
+    assert beyond[settle - 1].state is SupervisorState.GOAL_REACHED
+    off = _settled_short(mode=1, driven_m=2.0, wait=False)
+    assert off[settle - 1].state is SupervisorState.GOAL_REACHED
+
+
 def test_a_settled_goal_node_waits_while_the_goal_image_still_rises_below_t_milestone():
     """Confirmed a metre short, the goal node's score falls at once, while the goal image's,
     still below t_milestone, rises as the robot closes in: no arrival until it stops rising."""
