@@ -200,6 +200,11 @@ class NavigationStep:
         return self.state in (NavState.ARRIVED, NavState.FAILED)
 
 
+#: a confirmation this close to the newest heading vote's pose (distance driven, heading) stood
+#: still since: its offset repeats that vote (less than a tick of driving; turned less than the
+#: confirmations resolve a heading)
+STILL_M = 0.02
+STILL_RAD = math.radians(5.0)
 #: how many ticks of the way just driven the navigator remembers (``turn_room``)
 _BEHIND_TICKS = 200
 #: the commands before which the way just driven does not lead back (``turn_room``)
@@ -295,6 +300,9 @@ class Navigator:
         # nodes confirmed by driving), newest last: the heading gate's map-to-odometry offset
         self._offsets: collections.deque = collections.deque(
             maxlen=max(self.config.localiser.relocalise_heading_confirmations, self.config.heading_guard.confirmations))
+        # where the newest offset was measured: (distance driven, odometry heading); None: unknown
+        self._vote_pose: Optional[tuple] = None
+        self._travelled_m: Optional[float] = None
         self._guard = None if self._headings is None else HeadingGuard(self.config.heading_guard, self._headings)
         bandwidth = self.config.localiser.compass_bandwidth_deg
         # the first look round's views, for the heading offset (``localiser.compass_bandwidth_deg``)
@@ -386,6 +394,7 @@ class Navigator:
                                        f"{self.chooser.name}: build it with chooser=PolicyChooser()")
         self._ticks += 1
         self._belief = belief
+        self._travelled_m = travelled_m
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
         self._contrast = thirds_contrast
@@ -553,9 +562,19 @@ class Navigator:
                           reason=f"{why}; re-localising {where} ({self._relocalisations})")
 
     def _set_anchor(self, node: NodeId, heading_rad: Optional[float]) -> None:
+        """``node`` is the new anchor; with a heading, its offset is one more vote, unless the
+        robot stands where the newest vote was taken: nodes confirmed one after another while it
+        stands still (after a look round) measure one heading, not several."""
         self._anchor = node
-        if self._headings is not None and heading_rad is not None:
-            self._offsets.append(wrap_angle(float(heading_rad) - self._headings[node]))
+        if self._headings is None or heading_rad is None:
+            return
+        pose = (self._travelled_m, float(heading_rad))
+        last = self._vote_pose
+        if (last is not None and pose[0] is not None and last[0] is not None and abs(pose[0] - last[0]) < STILL_M
+                and abs(wrap_angle(pose[1] - last[1])) < STILL_RAD):
+            return
+        self._vote_pose = pose
+        self._offsets.append(wrap_angle(float(heading_rad) - self._headings[node]))
 
     def heading_offset(self) -> Optional[float]:
         """The map-to-odometry heading offset the heading gate uses (radians; odometry heading

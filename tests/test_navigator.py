@@ -651,7 +651,8 @@ def test_local_relocalisation_waits_until_the_robot_faces_the_way_the_map_did():
     assert sum(s.velocity.w_radps for s in steps if s.state is NavState.RELOCALISING) == 0
 
 
-def _confirm_along_chain(config: NavigationConfig, headings_at: Sequence[float]):
+def _confirm_along_chain(config: NavigationConfig, headings_at: Sequence[float],
+                         travelled_at: Optional[Sequence[float]] = None):
     """Chain 0 -> ... -> 9, the map facing 0 everywhere: localise at node 0, then drive on while
     the view matches node k = 1, 2, ... in turn, the odometry heading ``headings_at[k]`` there;
     returns the navigator and the nodes it confirmed."""
@@ -662,7 +663,8 @@ def _confirm_along_chain(config: NavigationConfig, headings_at: Sequence[float])
         view = np.full(10, 0.1)
         view[node] = 0.9
         for _ in range(12):
-            step = nav.tick(view, thirds=lambda n: (0.2, 0.9, 0.2), heading_rad=heading)
+            step = nav.tick(view, thirds=lambda n: (0.2, 0.9, 0.2), heading_rad=heading,
+                            travelled_m=None if travelled_at is None else travelled_at[node])
             if step.current_node is not None and (not confirmed or confirmed[-1] != step.current_node):
                 confirmed.append(step.current_node)
     return nav, confirmed
@@ -690,6 +692,23 @@ def test_the_heading_gate_takes_the_median_offset_of_the_last_confirmations():
     assert Navigator(graph, list(range(10)), 9, median).heading_offset() is None
     with pytest.raises(ValueError, match="relocalise_heading_confirmations"):
         replace(CONFIG.localiser, relocalise_heading_confirmations=0)
+
+
+def test_nodes_confirmed_while_standing_still_give_one_heading_vote():
+    """After a look round the robot stood 16 deg off the corridor and confirmed three nodes in
+    four ticks without moving: three votes of one heading made the median, and the guard held it
+    16 deg off until it reached the wall. One vote per pose lets the driven confirmations win."""
+    median = replace(CONFIG, localiser=replace(CONFIG.localiser, relocalise_heading_confirmations=5))
+    headings, travelled = [0.5, 0.5, 0.5, 0.1, 0.1], [0.0, 0.0, 0.01, 1.0, 2.0]
+    nav, confirmed = _confirm_along_chain(median, headings, travelled)
+    assert confirmed == [0, 1, 2, 3, 4]
+    assert nav.heading_offset() == pytest.approx(0.1)
+    # turning in place between confirmations is a new measurement; so is driving
+    nav, _ = _confirm_along_chain(median, [0.5, 0.2, 0.1, 0.3], [0.0, 0.0, 0.0, 0.0])
+    assert nav.heading_offset() == pytest.approx(0.25)
+    # without the distance driven every confirmation votes, as before
+    nav, _ = _confirm_along_chain(median, headings)
+    assert nav.heading_offset() == pytest.approx(0.5)
 
 
 # -- placed by the belief over the map (localiser.from_belief) ------------------------------
