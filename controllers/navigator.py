@@ -302,7 +302,7 @@ class Navigator:
             maxlen=max(self.config.localiser.relocalise_heading_confirmations, self.config.heading_guard.confirmations))
         # where the newest offset was measured: (distance driven, odometry heading); None: unknown
         self._vote_pose: Optional[tuple] = None
-        self._travelled_m: Optional[float] = None
+        self._travelled_m: Optional[float] = None   # the distance driven at this tick (for the vote)
         self._guard = None if self._headings is None else HeadingGuard(self.config.heading_guard, self._headings)
         bandwidth = self.config.localiser.compass_bandwidth_deg
         # the first look round's views, for the heading offset (``localiser.compass_bandwidth_deg``)
@@ -568,13 +568,12 @@ class Navigator:
         self._anchor = node
         if self._headings is None or heading_rad is None:
             return
-        pose = (self._travelled_m, float(heading_rad))
-        last = self._vote_pose
-        if (last is not None and pose[0] is not None and last[0] is not None and abs(pose[0] - last[0]) < STILL_M
-                and abs(wrap_angle(pose[1] - last[1])) < STILL_RAD):
+        heading, driven, last = float(heading_rad), self._travelled_m, self._vote_pose
+        if (last is not None and driven is not None and abs(driven - last[0]) < STILL_M
+                and abs(wrap_angle(heading - last[1])) < STILL_RAD):
             return
-        self._vote_pose = pose
-        self._offsets.append(wrap_angle(float(heading_rad) - self._headings[node]))
+        self._vote_pose = None if driven is None else (driven, heading)
+        self._offsets.append(wrap_angle(heading - self._headings[node]))
 
     def heading_offset(self) -> Optional[float]:
         """The map-to-odometry heading offset the heading gate uses (radians; odometry heading

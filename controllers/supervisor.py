@@ -152,8 +152,6 @@ class NodeSwitchSupervisor:
         self._goal_flat = 0
         self._goal_reason = ""
         self._goal_seen_m: Optional[float] = None   # odometry distance at the goal's confirmation
-        self._belief_mode: Optional[NodeId] = None   # this tick's belief mode and distance driven
-        self._travelled_m: Optional[float] = None
         # the goal image's filtered score and its peak during the final approach (image goals)
         self._image_filter = SimilarityFilter(1, config.filter)
         self._image: Optional[float] = None
@@ -215,7 +213,6 @@ class NodeSwitchSupervisor:
             if self._at_node_m is None:
                 self._at_node_m = self._at_sight_m = float(travelled_m)
         filtered = self.filter.update(row)
-        self._belief_mode, self._travelled_m = belief_mode, travelled_m
         if goal_score is not None and self.config.supervisor.goal_image_arrival:
             score = float(goal_score)
             if not np.isfinite(score):
@@ -236,7 +233,7 @@ class NodeSwitchSupervisor:
                                 "the start node is the goal node")
 
         if self._goal_peak is not None:
-            return self._settle_at_goal(path_scores)
+            return self._settle_at_goal(path_scores, travelled_m, belief_mode)
         here = float(path_scores[self._index])
         ahead = self._confirmable_ahead(path_scores, here)
         by_belief = ahead is None and self._goal_by_belief(goal_mass)
@@ -339,7 +336,8 @@ class NodeSwitchSupervisor:
                                       f"{target!r} ({blind:.2f} of {limit:g} m since the last node seen)"),
                        driving_on=True)
 
-    def _settle_at_goal(self, path_scores: np.ndarray) -> SupervisorDecision:
+    def _settle_at_goal(self, path_scores: np.ndarray, travelled_m: Optional[float],
+                        belief_mode: Optional[NodeId]) -> SupervisorDecision:
         """The goal passed its confirmation; arrive once its filtered score stops improving.
 
         A view some way before the goal node may already pass ``t_milestone`` (the band is
@@ -378,7 +376,7 @@ class NodeSwitchSupervisor:
         # robot is closing in on the place it shows: the node alone stopped a metre short there
         image_rising = (not image_in_play and self._image_peak is not None
                         and self._image_flat < cfg.goal_settle_ticks)
-        short = "" if image_in_play else self._belief_short()
+        short = "" if image_in_play else self._belief_short(travelled_m, belief_mode)
         if (self._image_settled and (at_node or self._node_settled)) or (
                 self._node_settled and not image_in_play and not image_rising and not short):
             why = "; ".join(w for w in (self._node_settled, self._image_settled) if w)
@@ -392,17 +390,17 @@ class NodeSwitchSupervisor:
             "ticks without improving" + ("" if image_in_play else " (below t_milestone, still rising)")))
         return self._decision(self._state, path_scores, None, f"goal in sight: {node}{image}{short}")
 
-    def _belief_short(self) -> str:
+    def _belief_short(self, travelled_m: Optional[float], belief_mode: Optional[NodeId]) -> str:
         """Why the settled goal waits for the belief (see :meth:`_settle_at_goal`), or ""."""
         last = len(self.path) - 1
-        if not (self.config.supervisor.goal_waits_for_belief and self._belief_mode in self.path[:last]
-                and self._travelled_m is not None and self._goal_seen_m is not None and self._arcs is not None):
+        if not (self.config.supervisor.goal_waits_for_belief and belief_mode in self.path[:last]
+                and travelled_m is not None and self._goal_seen_m is not None and self._arcs is not None):
             return ""
         arc = self._arcs.get((self.path[last - 1], self.path[last]))
-        driven = self._travelled_m - self._goal_seen_m
+        driven = travelled_m - self._goal_seen_m
         if arc is None or not driven < arc:
             return ""
-        return (f"; the belief still places the robot at node {self._belief_mode!r}, before the goal "
+        return (f"; the belief still places the robot at node {belief_mode!r}, before the goal "
                 f"(drove {driven:.2f} of the goal arc's {arc:.2f} m since its confirmation)")
 
     def _image_arrival(self) -> str:
