@@ -443,12 +443,7 @@ class HeadingGuardConfig:
     is seen best, it holds the goal node's mapped heading (FORWARD within
     ``final_tolerance_deg``, else FORWARD_LEFT / FORWARD_RIGHT) instead of following the votes:
     where the goal matches weakly the voter weaves left and right in place, and arrival, which
-    waits for the scores to stop improving, then comes without the robot having moved.
-
-    ``along_arc``: the error is measured from the mapped headings between the current node and
-    the target (any heading the mapping drive turned through on that arc is on the route), not
-    from the target's alone. Why: the drive turned gradually along an arc; asked for the target's
-    heading from the arc's start, a robot beside a jog round an obstacle turns into it."""
+    waits for the scores to stop improving, then comes without the robot having moved."""
 
     enabled: bool = True
     max_error_deg: float = 15.0
@@ -457,11 +452,9 @@ class HeadingGuardConfig:
     min_confirmations: int = 2
     final_approach: bool = True
     final_tolerance_deg: float = 5.0
-    along_arc: bool = False
 
     def __post_init__(self) -> None:
         check_bool("enabled", self.enabled)
-        check_bool("along_arc", self.along_arc)
         check_range("max_error_deg", self.max_error_deg, 0.0, 180.0, low_open=True, high_open=True,
                     what="a number of degrees")
         check_range("release_deg", self.release_deg, 0.0, self.max_error_deg, high_open=True, what="a number of degrees")

@@ -11,11 +11,7 @@ however the robot was angled when it confirmed; the median over several is less 
 
 :class:`HeadingGuard` compares the robot's heading with the target node's mapped heading and,
 past ``max_error_deg``, asks to turn back (LEFT / RIGHT, which creep forward) until the error is
-within ``release_deg`` (hysteresis: it does not chatter at the limit). With ``along_arc`` the
-error is measured from the headings the mapping drive turned through on the arc into the target
-(between the node before it and the target), not from the target's alone: the drive turned
-gradually along the arc, and a robot asked for the target's heading at the arc's start (a jog
-round an obstacle) steers early into what the jog went round. See
+within ``release_deg`` (hysteresis: it does not chatter at the limit). See
 :class:`controllers.config.HeadingGuardConfig` for why.
 """
 
@@ -70,19 +66,9 @@ class HeadingGuard:
         """Forget a turn back in progress (a new state, a new plan)."""
         self._active = False
 
-    def error_rad(self, target: NodeId, heading_rad: float, offset_rad: float,
-                  source: Optional[NodeId] = None) -> float:
-        """How far the robot faces from the target's mapped heading (positive: to its left); with
-        ``source`` (the node before the target on the path), from the nearer end of the headings
-        the mapping drive turned through between the two, 0 between them."""
-        to_target = wrap_angle(float(heading_rad) - (self._headings[target] + float(offset_rad)))
-        if source is None or source not in self._headings:
-            return to_target
-        turn = wrap_angle(self._headings[target] - self._headings[source])
-        from_source = wrap_angle(float(heading_rad) - (self._headings[source] + float(offset_rad)))
-        if min(0.0, turn) <= from_source <= max(0.0, turn):
-            return 0.0
-        return from_source if abs(from_source) < abs(to_target) else to_target
+    def error_rad(self, target: NodeId, heading_rad: float, offset_rad: float) -> float:
+        """How far the robot faces from the target's mapped heading (positive: to its left)."""
+        return wrap_angle(float(heading_rad) - (self._headings[target] + float(offset_rad)))
 
     def offset(self, offsets: Sequence[float], look: Optional[float] = None) -> Optional[float]:
         """The map-to-odometry heading offset from those measured at confirmations (newest last):
@@ -119,22 +105,20 @@ class HeadingGuard:
                         f"{math.degrees(error):+.0f} deg from it, {action.value}")
 
     def check(self, target: Optional[NodeId], heading_rad: Optional[float],
-              offset: Optional[float], source: Optional[NodeId] = None) -> Optional[tuple[Action, str]]:
+              offset: Optional[float]) -> Optional[tuple[Action, str]]:
         """``(action, reason)`` while the robot must turn back towards the target's mapped heading,
         else None. ``offset``: the map-to-odometry heading offset (:meth:`offset`, or a look's),
-        None while unknown. ``source``: the node before the target on the path (``along_arc``)."""
+        None while unknown."""
         cfg = self.config
         if (not cfg.enabled or target is None or heading_rad is None or target not in self._headings
                 or offset is None):
             self._active = False
             return None
-        arc = source if cfg.along_arc and source is not None and source != target else None
-        error = self.error_rad(target, heading_rad, offset, arc)
+        error = self.error_rad(target, heading_rad, offset)
         limit = math.radians(cfg.release_deg if self._active else cfg.max_error_deg)
         self._active = abs(error) > limit
         if not self._active:
             return None
         action = Action.RIGHT if error > 0 else Action.LEFT
-        where = f"node {target!r}" if arc is None else f"nodes {arc!r} -> {target!r}"
-        return action, (f"facing {math.degrees(error):+.0f} deg from the map's heading at {where} "
+        return action, (f"facing {math.degrees(error):+.0f} deg from the map's heading at node {target!r} "
                         f"(limit {cfg.max_error_deg:g}): turning back ({action.value}) to within {cfg.release_deg:g}")

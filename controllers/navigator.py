@@ -773,7 +773,7 @@ class Navigator:
         ``heading_guard``), or None."""
         if self._guard is None:
             return None
-        turn = self._guard.check(decision.target_node, heading_rad, self._guard_offset(), decision.current_node)
+        turn = self._guard.check(decision.target_node, heading_rad, self._guard_offset())
         return None if turn is None else (turn[0], f"{decision.reason}; {turn[1]}")
 
     def _approach_corner(self, decision: SupervisorDecision, node: NodeId) -> Optional[tuple]:

@@ -888,27 +888,6 @@ def test_the_heading_guard_turns_a_robot_back_that_faces_away_from_the_route():
     assert max(waiting) > 90.0
 
 
-def test_the_heading_guard_along_the_arc_lets_the_robot_face_the_way_the_drive_did_at_its_start():
-    """Chain 0 -> 1 -> 2, the drive turning 20 deg right from node 0 to node 1; localised at node
-    0 facing its mapped heading, the middle third matching: the guard of the target's heading
-    alone turns the robot right at once, the guard along the arc 0 -> 1 lets the voter drive."""
-    graph, _ = chain(3)
-    headings = {0: 0.0, 1: math.radians(-20.0), 2: math.radians(-20.0)}
-
-    def reasons(along_arc: bool) -> list:
-        guard = HeadingGuardConfig(min_confirmations=1, along_arc=along_arc)
-        nav = Navigator(graph, (0, 1, 2), 2, NavigationConfig(heading_hints=False, heading_guard=guard),
-                        node_headings=headings)
-        at_node_0 = np.array([0.85, 0.35, 0.2])
-        while nav.state is NavState.LOCALISING:
-            nav.tick(at_node_0, heading_rad=0.0)
-        return [nav.tick(at_node_0, thirds=lambda node: (0.2, 0.9, 0.2), heading_rad=0.0).reason for _ in range(5)]
-
-    plain = reasons(False)
-    assert any("turning back (right)" in r and "at node 1" in r for r in plain)
-    assert not any("turning back" in r for r in reasons(True))
-
-
 def test_heading_guard_settings_are_checked():
     for kwargs, name in (({"max_error_deg": 0.0}, "max_error_deg"), ({"release_deg": 40.0}, "release_deg"),
                          ({"confirmations": 0}, "confirmations"), ({"min_confirmations": 6}, "min_confirmations"),
