@@ -7,6 +7,9 @@ for; a chooser, given in its constructor, decides how to drive there this tick:
 * :class:`VoterChooser`: the paper's two-cycle Left / Middle / Right voter
   (:class:`controllers.voter.TwoCycleVoter`), plus the weak vote (the first ticks without a vote
   follow the best third anyway) and the patience after which the navigator searches;
+* :class:`BearingChooser`: the voter says whether the target is seen; while it is, the robot
+  steers by the target view's bearing (the shift between the view's column profile and the
+  target node's) instead of by the thirds;
 * :class:`PolicyChooser`: a learned policy (the SPTM-style baseline's head), asked per tick
   through the view's ``policy``; it always sees its target, so it never searches, and it gets
   no corner turns.
@@ -17,7 +20,7 @@ a corner turned, a re-localisation): the voter's pairs are per target.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Hashable, Optional, Protocol
 
 from controllers.actions import Action
@@ -37,12 +40,14 @@ class ChooserInputError(ValueError):
 class TargetView:
     """What a chooser may look at this tick, towards ``target``. ``thirds()`` and ``contrast()``
     are lazy (the thirds are described only when a chooser asks); ``policy`` is this frame's
-    learned policy, when the run loop has one."""
+    learned policy, when the run loop has one. ``bearing()`` (lazy too) is where the target's
+    view lies, as a fraction of the view's width, positive to the left (None: unknown)."""
 
     target: NodeId
     thirds: Callable[[], ThirdScores]
     contrast: Callable[[], Optional[ThirdScores]]
     policy: Optional[Callable[[NodeId], Action]] = None
+    bearing: Callable[[], Optional[float]] = lambda: None
 
 
 @dataclass(frozen=True)
@@ -118,6 +123,50 @@ class VoterChooser:
                           f"({self._unseen}/{blind})", scores, vote, self._unseen)
         lost = self._unseen >= blind + self.patience_ticks
         return Choice(vote.action, seen, lost, vote.reason, scores, vote, self._unseen)
+
+
+class BearingChooser:
+    """Steering by bearing (:class:`controllers.config.BearingConfig`): the voter
+    (:class:`VoterChooser`) decides whether the target is seen and what to do when it is not;
+    while a third votes, the action comes from ``view.bearing()`` instead: FORWARD within
+    ``deadband`` of the view's width, FORWARD_LEFT / FORWARD_RIGHT beyond it, LEFT / RIGHT beyond
+    ``turn``. A view without a bearing leaves the voter's action."""
+
+    name = "bearing"
+    uses_turn_hints = True
+
+    def __init__(self, voter: VoterChooser, deadband: float, turn: float):
+        self.voter = voter
+        self.deadband = float(deadband)
+        self.turn = float(turn)
+
+    @classmethod
+    def from_config(cls, config) -> "BearingChooser":
+        """The chooser a :class:`controllers.config.NavigationConfig` with ``bearing`` describes."""
+        return cls(VoterChooser.from_config(config), config.bearing.deadband, config.bearing.turn)
+
+    def reset(self) -> None:
+        self.voter.reset()
+
+    def action_for(self, bearing: float) -> Action:
+        """The action that turns the robot towards a view ``bearing`` (a fraction of the view's
+        width, positive to the left)."""
+        if abs(bearing) <= self.deadband:
+            return Action.FORWARD
+        if abs(bearing) > self.turn:
+            return Action.LEFT if bearing > 0 else Action.RIGHT
+        return Action.FORWARD_LEFT if bearing > 0 else Action.FORWARD_RIGHT
+
+    def choose(self, view: TargetView) -> Choice:
+        choice = self.voter.choose(view)
+        if not choice.sees_target:
+            return choice
+        bearing = view.bearing()
+        if bearing is None:
+            return choice
+        action = self.action_for(bearing)
+        return replace(choice, action=action, reason=f"{choice.reason}; the target's view lies {bearing:+.2f} "
+                                                       f"of the view's width: {action.value}")
 
 
 #: actions a learned policy may not return: the navigator's own (search, backing off, retracing) and STOP

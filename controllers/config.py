@@ -516,6 +516,31 @@ class BeliefConfig:
 
 
 @dataclass(frozen=True)
+class BearingConfig:
+    """Not in the paper. Steering by bearing (``enabled``; :class:`controllers.choosers.BearingChooser`):
+    while the voter sees the target (a third votes), the direction comes from the shift that best
+    aligns the view's column profile with the target node's (:mod:`descriptors.columns`, a
+    fraction of the view's width, positive to the left) instead of from the thirds: within
+    ``deadband`` FORWARD, beyond it FORWARD_LEFT / FORWARD_RIGHT, beyond ``turn`` LEFT / RIGHT.
+    The voter still says whether the target is seen (its weak vote, its patience, the search).
+    Why: the thirds say which third looks most like the target, and under another day's light
+    that flips between left and right from one vote to the next; the shift grows steadily with
+    the heading error (about 0.15 of the view per 10 deg with the Limo's 65 deg camera) and with
+    the distance beside the mapped line (about 0.1 per half metre), so nulling it brings the
+    robot back onto the drive's heading and towards its line (bearing-only teach and repeat).
+    Needs a map with column profiles (made since 2026-12-07)."""
+
+    enabled: bool = False
+    deadband: float = 0.04
+    turn: float = 0.25
+
+    def __post_init__(self) -> None:
+        check_bool("enabled", self.enabled)
+        check_range("deadband", self.deadband, 0.0, 0.5, high_open=True, what="a fraction of the view's width")
+        check_range("turn", self.turn, self.deadband, 1.0, low_open=True, what="a fraction of the view's width")
+
+
+@dataclass(frozen=True)
 class NavigationConfig:
     """Everything the navigator needs besides the map. Load from YAML with
     ``core.configfile.load_config(NavigationConfig, path)``; use :meth:`with_thresholds` to
@@ -536,6 +561,8 @@ class NavigationConfig:
     turn_room: TurnRoomConfig = field(default_factory=TurnRoomConfig)
     #: turning back when the robot faces away from the route (the voter only)
     heading_guard: HeadingGuardConfig = field(default_factory=HeadingGuardConfig)
+    #: steering by the bearing of the target's view instead of the thirds (off by default)
+    bearing: BearingConfig = field(default_factory=BearingConfig)
     #: The two-cycle voter executes on every second tick. True: the executed action is held
     #: through the next (storing) tick, i.e. each decision lasts one two-tick vote period
     #: (a zero-order hold; smooth motion). False: the robot stands still on storing ticks,
@@ -609,7 +636,7 @@ class NavigationConfig:
                                goal_image_arrival=False, goal_by_belief=False, goal_waits_for_belief=False,
                                odometry_max_m=0.0),
             recovery=replace(self.recovery, enabled=False), turn_room=replace(self.turn_room, enabled=False),
-            heading_guard=replace(self.heading_guard, enabled=False),
+            heading_guard=replace(self.heading_guard, enabled=False), bearing=replace(self.bearing, enabled=False),
             hold_action_between_votes=False, blind_forward_ticks=0, heading_hints=False)
 
     def with_thresholds(self, thresholds: Thresholds) -> "NavigationConfig":

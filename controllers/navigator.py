@@ -23,8 +23,9 @@ States (:class:`NavState`):
   ``localiser.max_search_ticks``.
 * NAVIGATING: following the planned path; the action chooser given to the constructor
   (:mod:`controllers.choosers`) picks the actions: the two-cycle voter by default (with its weak
-  vote: the first ticks without a vote follow the best third), or a learned policy (the
-  SPTM-style baseline: same localisation, planning and node switching, a classifier picks the
+  vote: the first ticks without a vote follow the best third), the voter steering by the
+  target's bearing instead of the thirds (``bearing``; ``bearings`` passed each tick), or a
+  learned policy (the SPTM-style baseline: same localisation, planning and node switching, a classifier picks the
   action; it never searches and gets no corner turns).
 * TURNING: the corner turn. With ``node_headings`` (the mapping drive's odometry heading per
   node) and ``heading_hints`` on, after a node is confirmed, when the drive turned from it to
@@ -129,7 +130,8 @@ import numpy as np
 
 from controllers.actions import Action, action_velocity
 from controllers.belief import BeliefSnapshot
-from controllers.choosers import ActionChooser, ChooserInputError, PolicyChooser, TargetView, VoterChooser
+from controllers.choosers import (ActionChooser, BearingChooser, ChooserInputError, PolicyChooser, TargetView,
+                                  VoterChooser)
 from controllers.compass import LookCompass
 from controllers.config import NavigationConfig
 from controllers.heading_guard import HeadingGuard, median_offset, offset_votes
@@ -264,7 +266,9 @@ class Navigator:
         self.config = config
         self._column = {node: j for j, node in enumerate(self.node_ids)}
         self.filter = SimilarityFilter(len(self.node_ids), config.filter)
-        self.chooser: ActionChooser = VoterChooser.from_config(config) if chooser is None else chooser
+        if chooser is None:
+            chooser = BearingChooser.from_config(config) if config.bearing.enabled else VoterChooser.from_config(config)
+        self.chooser: ActionChooser = chooser
         undirected = self._undirected = graph.to_undirected(as_view=True)
         hops = config.localiser.neighbourhood_hops
         self._neighbourhoods = {n: frozenset(nx.single_source_shortest_path_length(undirected, n, cutoff=hops))
@@ -283,6 +287,7 @@ class Navigator:
         self._final: Optional[NavigationStep] = None
         self._planning_error: Optional[PlanningError] = None
         self._contrast: Optional[np.ndarray] = None
+        self._bearings: Optional[Callable[[NodeId], Optional[float]]] = None   # this tick's (bearing chooser)
         reaching = self._goal_reachers
         self._reaches_goal = np.array([n in reaching for n in self.node_ids])
         self._headings: Optional[dict] = None
@@ -362,7 +367,8 @@ class Navigator:
              thirds_contrast: Optional[np.ndarray] = None, policy: PolicyInput = None,
              belief: Optional[BeliefSnapshot] = None,
              goal_score: Optional[float] = None, stalled: bool = False,
-             travelled_m: Optional[float] = None) -> NavigationStep:
+             travelled_m: Optional[float] = None,
+             bearings: Optional[Callable[[NodeId], Optional[float]]] = None) -> NavigationStep:
         """One control tick.
 
         ``similarities``: the current full view's cosine similarity to every node (column order
@@ -381,7 +387,9 @@ class Navigator:
         robot is pressed against a wall (:class:`controllers.stall.StallMonitor`); with
         ``recovery.enabled`` it backs off. ``travelled_m``: the distance the odometry has driven so
         far (metres along the robot's heading, less when reversing), for driving on by odometry
-        where the views match nothing (``supervisor.odometry_max_m``).
+        where the views match nothing (``supervisor.odometry_max_m``). ``bearings``: ``bearings(node)``
+        is where that node's view lies in this view, as a fraction of its width, positive to the
+        left (None: unknown), for a :class:`controllers.choosers.BearingChooser`.
         """
         try:
             row = similarity_row(similarities, len(self.node_ids), "similarities")
@@ -397,7 +405,7 @@ class Navigator:
         self._travelled_m = travelled_m
         if self._state in (NavState.LOCALISING, NavState.RELOCALISING):
             return self._localise_tick(row, heading_rad)
-        self._contrast = thirds_contrast
+        self._contrast, self._bearings = thirds_contrast, bearings
         return self._navigate_tick(row, thirds, heading_rad, policy, goal_score, stalled, travelled_m)
 
     # -- states ---------------------------------------------------------------------------
@@ -664,7 +672,7 @@ class Navigator:
         target = decision.target_node
         view = TargetView(target, lambda: self._thirds_for(target, thirds),
                           lambda: None if self._contrast is None else self._thirds_for(target, self._contrast),
-                          policy)
+                          policy, lambda: None if self._bearings is None else self._bearings(target))
         try:
             choice = self.chooser.choose(view)
         except ChooserInputError as exc:

@@ -84,6 +84,9 @@ class Descriptor(Protocol):
         """(N, 4, D): the full image, then its Left, Middle and Right vertical thirds."""
         ...
 
+    # Optional: ``describe_with_columns(images) -> (describe_thirds(images), (N, W, C) column
+    # profiles)`` for steering by bearing (:mod:`descriptors.columns`; :func:`has_columns`).
+
     def state_dict(self) -> dict:
         """Everything needed to rebuild the fitted descriptor (settings and vocabulary)."""
         ...
@@ -91,3 +94,8 @@ class Descriptor(Protocol):
     def load_state(self, state: Mapping[str, object]) -> None:
         """Restore from :meth:`state_dict`; raises :class:`DescriptorError` on a mismatch."""
         ...
+
+
+def has_columns(descriptor: object) -> bool:
+    """Whether ``descriptor`` gives column profiles with its thirds (``describe_with_columns``)."""
+    return callable(getattr(descriptor, "describe_with_columns", None))

@@ -9,7 +9,8 @@ that benchmarks show what VLAD adds.
 An *extractor* is any object with ``__call__(images) -> (N, H', W', C)`` unit-length features,
 ``feature_dim`` and ``settings`` (a JSON-able dict of everything that changes its features).
 The thirds of an image are the Left / Middle / Right thirds of the feature map's columns, so one
-forward pass gives the full view and its three thirds (:meth:`describe_thirds`).
+forward pass gives the full view and its three thirds (:meth:`describe_thirds`), and with them the
+view's column profile (:meth:`describe_with_columns`, :mod:`descriptors.columns`).
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from descriptors.base import DescriptorError, DescriptorIdentity, check_state_matches
+from descriptors.columns import column_profiles
 from descriptors.preprocess import third_bounds, to_rgb_batch
 from descriptors.vlad import VladVocabulary, l2_normalise
 
@@ -80,6 +82,11 @@ class DenseVlad:
     def describe_thirds(self, images: Sequence[np.ndarray]) -> np.ndarray:
         return self.aggregate_thirds(self.local_features(images))
 
+    def describe_with_columns(self, images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """``(describe_thirds(images), column profiles (N, W, C))`` from one forward pass."""
+        maps = self.local_features(images)
+        return self.aggregate_thirds(maps), column_profiles(maps)
+
     def aggregate(self, maps: np.ndarray) -> np.ndarray:
         if not self.vocabulary.fitted:
             raise DescriptorError(f"{self.backend}: the VLAD vocabulary is not fitted; call fit() on the "
@@ -133,6 +140,11 @@ class DenseMeanPool:
 
     def describe_thirds(self, images: Sequence[np.ndarray]) -> np.ndarray:
         return self.aggregate_thirds(self.local_features(images))
+
+    def describe_with_columns(self, images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """``(describe_thirds(images), column profiles (N, W, C))`` from one forward pass."""
+        maps = self.local_features(images)
+        return self.aggregate_thirds(maps), column_profiles(maps)
 
     @staticmethod
     def aggregate(maps: np.ndarray) -> np.ndarray:

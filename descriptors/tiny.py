@@ -80,3 +80,10 @@ class TinyDescriptor:
             keep[a:b] = 1.0
             rows.append(self._join(t * keep, gx * keep[:-1] * keep[1:], gy * keep))
         return np.stack(rows, axis=1)
+
+    def describe_with_columns(self, images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+        """``(describe_thirds(images), column profiles (N, W, 2H - 1))``: per thumbnail column its
+        pixels and vertical gradients, unit length (:mod:`descriptors.columns`)."""
+        t, _, gy = self._parts(self._thumbs(images))
+        columns = np.concatenate([t, gy], axis=1).transpose(0, 2, 1)
+        return self.describe_thirds(images), l2_normalise(columns)

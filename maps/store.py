@@ -6,6 +6,8 @@ Layout of a map folder::
     descriptors.npy          (n_nodes, D) float32, row k = manifest nodes[k]
     descriptor_state.npz     the descriptor's state (vocabulary, settings), opaque to the map
     walkthrough.npz          optional: the build log and the walkthrough's similarity sample
+    columns.npy              optional: (n_nodes, W, C) float16, each keyframe's column profile
+                             (descriptors.columns: steering by bearing), row k = nodes[k]
     thumbs/000000.jpg ...    one small JPEG per node (THUMB_SIZE, quality THUMB_QUALITY)
 
 The manifest's ``files`` table lists every other file with its size and SHA-256, so truncation
@@ -55,6 +57,7 @@ MANIFEST = "manifest.json"
 DESCRIPTORS = "descriptors.npy"
 STATE = "descriptor_state.npz"
 WALKTHROUGH = "walkthrough.npz"
+COLUMNS = "columns.npy"
 THUMBS = "thumbs"
 
 
@@ -98,7 +101,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
              descriptor_state: Mapping[str, object], thresholds: MapThresholds,
              thumbnails: Mapping[int, np.ndarray | bytes], calibration: Optional[Mapping] = None,
              log: Optional[BuildLog] = None, similarity: Optional[SimilaritySample] = None,
-             merged: Optional[Mapping[int, int]] = None, extra: Optional[Mapping] = None) -> Path:
+             merged: Optional[Mapping[int, int]] = None, extra: Optional[Mapping] = None,
+             columns: Optional[np.ndarray] = None) -> Path:
     """Write the map folder at ``path`` atomically (see the module docstring); return the path.
 
     ``identity``: the descriptor's :class:`DescriptorIdentity` (its ``dim`` must match the map).
@@ -109,7 +113,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
     every node; ids of nodes no longer in the map are ignored. ``calibration``: ``Calibration.to_dict()`` when calibrated. ``log`` and
     ``similarity``: the build log and walkthrough similarity sample, for the pictures.
     ``merged``: the optimisation pass's removed -> kept node ids (``MergeResult.merged``).
-    ``extra``: any JSON-able summary (frames read, source video, ...).
+    ``extra``: any JSON-able summary (frames read, source video, ...). ``columns``: the nodes'
+    column profiles ``(n_nodes, W, C)`` in the map's node order (stored as float16), or None.
 
     An existing target is replaced only if it is a map folder (has a manifest) or is empty.
     """
@@ -127,6 +132,11 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
         raise MapError(f"no thumbnail for node(s) {missing[:5]}{'...' if len(missing) > 5 else ''}")
     if similarity is not None and log is None:
         raise MapError("a similarity sample is only stored together with its build log")
+    if columns is not None:
+        columns = np.asarray(columns)
+        if columns.ndim != 3 or columns.shape[0] != len(topomap) or not np.all(np.isfinite(columns)):
+            raise MapError(f"columns must be finite, of shape ({len(topomap)}, W, C), one row per node; "
+                           f"got shape {columns.shape}")
 
     recover_interrupted_save(path)
     if path.exists():
@@ -146,6 +156,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
             arrays["similarity_seq"] = np.asarray(similarity.seq, dtype=np.int64)
             arrays["similarity_matrix"] = np.asarray(similarity.matrix, dtype=np.float16)
         files[WALKTHROUGH] = _npz_bytes(arrays)
+    if columns is not None:
+        files[COLUMNS] = _npy_bytes(np.ascontiguousarray(columns, dtype=np.float16))
     nodes = []
     for node in topomap.nodes():
         thumb = f"{THUMBS}/{node.node_id:06d}.jpg"
@@ -169,6 +181,7 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
         "vocabulary_sha256": identity.vocabulary_sha256,
         "descriptors": {"file": DESCRIPTORS, "shape": [len(topomap), topomap.dim], "dtype": "float32"},
         "walkthrough": WALKTHROUGH if log is not None else None,
+        "columns": None if columns is None else {"file": COLUMNS, "shape": list(columns.shape), "dtype": "float16"},
         "thresholds": thresholds.to_dict(),
         "calibration": dict(calibration) if calibration is not None else None,
         "merged": {str(int(k)): int(v) for k, v in (merged or {}).items()},
@@ -195,7 +208,9 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
 @dataclass(frozen=True)
 class LoadedMap:
     """A validated map folder. ``calibration`` is the calibration record or ``None``; ``log``
-    and ``similarity`` are ``None`` when the folder has no walkthrough file."""
+    and ``similarity`` are ``None`` when the folder has no walkthrough file; ``columns``
+    (float32, ``(n_nodes, W, C)``, row k = node ``topomap.node_ids[k]``) when it has no column
+    profiles (maps made before 2026-12-07, or with a descriptor that gives none)."""
 
     path: Path
     topomap: TopoMap
@@ -209,6 +224,7 @@ class LoadedMap:
     merged: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
     thumbnail_files: dict = field(default_factory=dict)
+    columns: Optional[np.ndarray] = None
 
     def thumbnail_path(self, node_id: int) -> Path:
         if node_id not in self.thumbnail_files:
@@ -385,6 +401,25 @@ def _parse_walkthrough(chk: _Checker, data: bytes) -> tuple[BuildLog, Optional[S
     return log, similarity
 
 
+def _parse_columns(chk: _Checker, manifest: Mapping, files: Mapping[str, bytes], n_nodes: int) -> Optional[np.ndarray]:
+    entry = manifest.get("columns")
+    if entry is None:
+        return None
+    where = f"{MANIFEST}: columns"
+    name = chk.relpath(f"{where}.file", chk.key(where, entry, "file")) if isinstance(entry, dict) else None
+    if name is None or name not in files:
+        raise chk.fail(where, f"expected a file of the manifest's file table, got {entry!r}")
+    try:
+        x = np.load(io.BytesIO(files[name]), allow_pickle=False)
+    except (ValueError, OSError, EOFError) as exc:
+        raise chk.fail(name, f"not a readable .npy array ({exc})") from None
+    if not isinstance(x, np.ndarray) or x.ndim != 3 or x.shape[0] != n_nodes:
+        raise chk.fail(name, f"shape is {getattr(x, 'shape', None)}, expected ({n_nodes}, W, C) for {n_nodes} nodes")
+    if not np.all(np.isfinite(x)):
+        raise chk.fail(name, "has NaN or infinite values")
+    return x.astype(np.float32)
+
+
 def load_map(path: str | Path, expected_identity: Optional[DescriptorIdentity] = None, *,
              verify_hashes: bool = True) -> LoadedMap:
     """Load and validate the map folder at ``path``.
@@ -454,6 +489,7 @@ def load_map(path: str | Path, expected_identity: Optional[DescriptorIdentity] =
         if name not in files:
             raise chk.fail(name, "is not in the manifest's file table")
         log, similarity = _parse_walkthrough(chk, files[name])
+    columns = _parse_columns(chk, manifest, files, len(nodes))
     calibration = manifest.get("calibration")
     extra = manifest.get("extra") or {}
     merged_raw = manifest.get("merged") or {}
@@ -466,7 +502,7 @@ def load_map(path: str | Path, expected_identity: Optional[DescriptorIdentity] =
                      calibration=calibration if isinstance(calibration, dict) else None,
                      log=log, similarity=similarity, merged=merged,
                      extra=extra if isinstance(extra, dict) else {},
-                     thumbnail_files={n["id"]: n["thumbnail"] for n in nodes})
+                     thumbnail_files={n["id"]: n["thumbnail"] for n in nodes}, columns=columns)
 
 
 # -- size --------------------------------------------------------------------------------

@@ -266,7 +266,7 @@ def _navigate_serial(args, config):
             viewer.setup(goal.node, goal.image, goal.source)
         outcome = run_episode(base, loaded.topomap, descriptor, goal.node, nav, budget,
                               observer=None if viewer is None else viewer.observer,
-                              goal_descriptor=goal.descriptor)
+                              goal_descriptor=goal.descriptor, node_columns=loaded.columns)
     metrics = compute_metrics(outcome)
     if args.result is not None:
         write_json(args.result, {**metrics.to_dict(), "setup": {"map": str(args.map), "goal": goal.source,

@@ -1,16 +1,19 @@
-"""The action choosers: the voter with its weak vote and patience, and a learned policy."""
+"""The action choosers: the voter with its weak vote and patience, steering by bearing, and a
+learned policy."""
 
 import pytest
 
 from controllers.actions import Action
-from controllers.choosers import ChooserInputError, PolicyChooser, TargetView, VoterChooser
-from controllers.config import NavigationConfig
+from dataclasses import replace
+
+from controllers.choosers import BearingChooser, ChooserInputError, PolicyChooser, TargetView, VoterChooser
+from controllers.config import BearingConfig, NavigationConfig
 from controllers.voter import ThirdScores, VoteKind
 
 
-def _view(left, middle, right, policy=None, target=7):
+def _view(left, middle, right, policy=None, target=7, bearing=None):
     scores = ThirdScores(left, middle, right)
-    return TargetView(target, lambda: scores, lambda: None, policy)
+    return TargetView(target, lambda: scores, lambda: None, policy, lambda: bearing)
 
 
 SEEN = (0.2, 0.9, 0.3)          # the middle third sees the target
@@ -63,3 +66,39 @@ def test_a_policy_chooser_asks_the_policy_about_the_target():
         PolicyChooser().choose(_view(*SEEN))
     with pytest.raises(ChooserInputError, match="returned"):
         PolicyChooser().choose(_view(*SEEN, policy=lambda node: Action.SEARCH_ROTATE))
+
+
+@pytest.mark.parametrize("bearing, action", [(0.0, Action.FORWARD), (0.03, Action.FORWARD),
+                                             (0.1, Action.FORWARD_LEFT), (-0.1, Action.FORWARD_RIGHT),
+                                             (0.3, Action.LEFT), (-0.3, Action.RIGHT)])
+def test_steering_by_bearing_turns_towards_where_the_targets_view_lies(bearing, action):
+    chooser = BearingChooser(VoterChooser(0.5, hold_executed=False, blind_forward_ticks=2), deadband=0.04, turn=0.25)
+    # the thirds say "forward" (the middle third sees it); the bearing decides, on every tick seen
+    choices = [chooser.choose(_view(*SEEN, bearing=bearing)) for _ in range(2)]
+    assert [c.action for c in choices] == [action, action] and all(c.sees_target for c in choices)
+    assert "of the view's width" in choices[0].reason and choices[1].vote.kind is VoteKind.EXECUTED
+
+
+def test_steering_by_bearing_leaves_the_voter_where_the_target_is_not_seen_or_has_no_bearing():
+    chooser = BearingChooser(VoterChooser(0.5, blind_forward_ticks=2, patience_ticks=1), deadband=0.04, turn=0.25)
+    weak = [chooser.choose(_view(*UNSEEN, bearing=0.3)) for _ in range(3)]
+    assert [c.action for c in weak[:2]] == [Action.RIGHT, Action.RIGHT] and weak[2].lost_sight
+    chooser.reset()
+    plain = chooser.choose(_view(*SEEN))
+    assert plain.action is VoterChooser(0.5, blind_forward_ticks=2).choose(_view(*SEEN)).action
+    assert "view's width" not in plain.reason
+
+
+def test_the_chooser_of_a_configuration_with_bearing():
+    from controllers.navigator import Navigator
+    from tests.synthetic_places import chain
+
+    graph, _ = chain(3)
+    on = NavigationConfig(bearing=BearingConfig(enabled=True, deadband=0.05, turn=0.3))
+    nav = Navigator(graph, (0, 1, 2), 2, on)
+    assert isinstance(nav.chooser, BearingChooser) and nav.chooser.turn == 0.3
+    assert isinstance(Navigator(graph, (0, 1, 2), 2, NavigationConfig()).chooser, VoterChooser)
+    assert on.as_published().bearing.enabled is False
+    for bad in ({"deadband": -0.1}, {"turn": 0.01}, {"enabled": "yes"}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            replace(BearingConfig(), **bad)

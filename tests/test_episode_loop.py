@@ -1,12 +1,16 @@
 """The episode loop (robot.episode.loop.run_episode) on a base in memory: every way out of the loop
 leaves the base commanded to zero, and each end is reported as what it is."""
 
+import math
+from dataclasses import replace
+
+import numpy as np
 import pytest
 
-from controllers.config import NavigationConfig, Thresholds
+from controllers.config import BearingConfig, NavigationConfig, Thresholds
 from core.hal import HalError, Pose2D
 from core.hal_check import check_base
-from maps.graph import TopoMap
+from maps.graph import MapError, TopoMap
 from robot.episode.loop import EpisodeEnd, run_episode
 from tests.memory_base import ChainDescriptor, MemoryBase, encode_position
 
@@ -137,3 +141,50 @@ def test_a_goal_descriptor_of_another_length_is_refused(chain):
         run_episode(base, topomap, descriptor, N_NODES - 1, CONFIG, 10, goal_descriptor=[1.0, 0.0])
     base.close()
 
+
+
+class _TurnedChainDescriptor(ChainDescriptor):
+    """The chain's descriptors, and column profiles of a panorama seen at the base's heading
+    (the picture encodes only the position, so the heading is read from the base: a stand-in
+    for a camera that turns with the robot)."""
+
+    def __init__(self, n_nodes: int, base: MemoryBase):
+        super().__init__(n_nodes)
+        self.base = base
+        rng = np.random.default_rng(0)
+        self.panorama = rng.normal(size=(60, 8))
+        self.panorama /= np.linalg.norm(self.panorama, axis=1, keepdims=True)
+
+    def columns_at(self, yaw_rad: float) -> np.ndarray:
+        # 10 columns over 65 deg, centred on the heading; turning left moves the content right
+        first = 25 - int(round(math.degrees(yaw_rad) / 6.5))
+        return self.panorama[first:first + 10].astype(np.float32)
+
+    def describe_with_columns(self, images):
+        return self.describe_thirds(images), np.stack([self.columns_at(self.base.pose.yaw_rad) for _ in images])
+
+
+def test_with_bearing_the_loop_steers_a_robot_facing_off_the_chain_back_along_it(chain):
+    topomap, _ = chain
+    base = MemoryBase(start=Pose2D(0.0, 0.0, math.radians(20.0)))
+    descriptor = _TurnedChainDescriptor(N_NODES, base)
+    columns = np.stack([descriptor.columns_at(0.0)] * N_NODES)        # every node mapped facing +x
+    config = replace(CONFIG, bearing=BearingConfig(enabled=True))
+    reasons = []
+    base.connect()
+    try:
+        outcome = run_episode(base, topomap, descriptor, N_NODES - 1, config, 400, thirds_contrast=False,
+                              node_columns=columns, observer=lambda r: reasons.append(r.step.reason) and None)
+    finally:
+        base.close()
+    assert outcome.end is EpisodeEnd.ARRIVED, outcome.reason
+    steered = [r for r in reasons if "of the view's width" in r]
+    assert steered and steered[0].endswith("right")        # facing 20 deg left: it bears right
+    assert abs(math.degrees(base.pose.yaw_rad)) < 8.0        # the voter alone would keep the 20 deg
+    # a map without column profiles is refused before the robot moves, naming the setting
+    base = MemoryBase()
+    base.connect()
+    with pytest.raises(MapError, match="navigation.bearing.enabled: the map has no column profiles"):
+        run_episode(base, topomap, descriptor, N_NODES - 1, config, 10)
+    assert base.last_command.is_zero
+    base.close()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import io
 import json
 import os
 from pathlib import Path
@@ -395,3 +396,26 @@ def test_gyro_headings_round_trip_beside_the_odometrys(tmp_path):
     loaded = load_map(path).topomap
     assert loaded.headings("gyro") == gyro and loaded.odom_headings is None
     assert loaded.node(ids[3]).gyro_yaw_rad == gyro[ids[3]]
+
+
+def test_column_profiles_round_trip_and_bad_ones_are_refused(tmp_path, made):
+    from maps.store import COLUMNS
+
+    n = len(made[0].topomap)
+    columns = np.random.default_rng(0).normal(size=(n, 10, 6)).astype(np.float32)
+    loaded = load_map(save(tmp_path / "with", made, columns=columns))
+    assert loaded.columns.dtype == np.float32 and loaded.columns.shape == (n, 10, 6)
+    assert np.allclose(loaded.columns, columns, atol=2e-3)          # stored as float16
+    assert load_map(save(tmp_path / "without", made)).columns is None   # maps before them
+    with pytest.raises(MapError, match=r"columns must be finite, of shape"):
+        save(tmp_path / "bad", made, columns=columns[:-1])
+    # a columns file of the wrong shape behind a consistent file table is named on load
+    path = save(tmp_path / "damaged", made, columns=columns)
+    manifest = json.loads((path / "manifest.json").read_text())
+    data = io.BytesIO()
+    np.save(data, columns[:-1].astype(np.float16))
+    (path / COLUMNS).write_bytes(data.getvalue())
+    manifest["files"][COLUMNS] = {"bytes": len(data.getvalue()), "sha256": hashlib.sha256(data.getvalue()).hexdigest()}
+    (path / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(MapError, match=rf"{COLUMNS}.*shape is \({n - 1}, 10, 6\)"):
+        load_map(path)

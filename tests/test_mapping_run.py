@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 import cv2
+import numpy as np
 import pytest
 
 from maps.store import load_map
@@ -59,6 +60,9 @@ def test_mapping_run_builds_a_map_along_the_drive(tiny_run):
         p = node.true_pose
         assert 0.5 < p.x_m < 5.5 and 0.5 < p.y_m < 3.5
     assert loaded.identity.backend == "effnet-vlad"
+    # every keyframe's column profile (steering by bearing): 320 px at stride 32, unit columns
+    assert loaded.columns.shape == (len(topomap), 10, 192)
+    assert np.allclose(np.linalg.norm(loaded.columns, axis=-1), 1.0, atol=1e-2)
     # the drive's odometry heading at every node (navigation's turn hints): it turned as the truth did
     first = topomap.nodes()[0]
     for source in ("odometry", "gyro"):     # and the gyro's, integrated over every recorded frame

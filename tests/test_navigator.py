@@ -888,6 +888,32 @@ def test_the_heading_guard_turns_a_robot_back_that_faces_away_from_the_route():
     assert max(waiting) > 90.0
 
 
+def test_with_bearing_the_navigator_steers_by_the_targets_bearing_it_is_passed():
+    """Chain 0 -> 1 -> 2, localised at node 0, the middle third seeing the target: the voter
+    drives FORWARD; with bearing on and the target's view a tenth of the view to the left, the
+    navigator asks for the target's bearing and bears left."""
+    from controllers.config import BearingConfig
+
+    graph, _ = chain(3)
+    at_node_0 = np.array([0.85, 0.35, 0.2])
+
+    def actions(config, bearings):
+        nav = Navigator(graph, (0, 1, 2), 2, config)
+        while nav.state is NavState.LOCALISING:
+            nav.tick(at_node_0)
+        asked = []
+        steps = [nav.tick(at_node_0, thirds=lambda node: (0.2, 0.9, 0.2),
+                          bearings=None if bearings is None else lambda node: asked.append(node) or bearings)
+                 for _ in range(4)]
+        return [s.action for s in steps if s.state is NavState.NAVIGATING], asked
+
+    on = NavigationConfig(bearing=BearingConfig(enabled=True))
+    steered, asked = actions(on, 0.1)
+    assert set(steered) == {Action.FORWARD_LEFT} and asked and set(asked) == {1}
+    assert Action.FORWARD_LEFT not in actions(NavigationConfig(), None)[0]
+    assert Action.FORWARD_LEFT not in actions(on, None)[0]          # no bearings passed: the voter's
+
+
 def test_heading_guard_settings_are_checked():
     for kwargs, name in (({"max_error_deg": 0.0}, "max_error_deg"), ({"release_deg": 40.0}, "release_deg"),
                          ({"confirmations": 0}, "confirmations"), ({"min_confirmations": 6}, "min_confirmations"),

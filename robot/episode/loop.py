@@ -10,7 +10,8 @@ HAL-agnostic: the same loop runs the simulated Limo and the serial Limo. Every c
     step = navigator.tick(row, thirds=thirds, thirds_contrast=contrast_thirds(thirds), heading_rad=yaw,
                           belief=belief.snapshot(),       # it places the robot with localiser.from_belief
                           goal_score=goal_descriptor @ x[0],   # image goals: the final approach
-                          travelled_m=odometry distance so far)  # driving on where the views match nothing
+                          travelled_m=odometry distance so far,  # driving on where the views match nothing
+                          bearings=node -> column_shift(view columns, node columns))  # navigation.bearing
     base.apply(step.velocity); base.tick()
 
 and it stops when the navigator declares arrival or failure, the step budget runs out, the base
@@ -44,7 +45,8 @@ from controllers.stall import StallMonitor
 from controllers.voter import contrast_thirds
 from core.hal import HalError, RobotBase, SensorFrame, VelocityCommand
 from core.yaw_rate import YawRateIntegrator
-from descriptors.base import Descriptor
+from descriptors.base import Descriptor, has_columns
+from descriptors.columns import column_shift
 from maps.graph import MapError, TopoMap
 from robot.episode.belief import BeliefTracker, OdometryMotion, map_belief
 
@@ -211,7 +213,8 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
                 config: NavigationConfig, max_steps: int,
                 observer: Optional[Observer] = None, *, thirds_contrast: bool = True,
                 action_policy: Optional[ActionPolicy] = None,
-                goal_descriptor: Optional[np.ndarray] = None) -> EpisodeOutcome:
+                goal_descriptor: Optional[np.ndarray] = None,
+                node_columns: Optional[np.ndarray] = None) -> EpisodeOutcome:
     """Drive the connected ``base`` to ``goal_node`` of ``topomap``; see the module docstring.
 
     ``descriptor`` must be the map's (see :func:`attach_descriptor`); ``config.thresholds`` are
@@ -222,7 +225,9 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
     ``action_policy``: a learned policy that picks the actions instead of the voter (its time
     counts as ``describe_ms``). ``goal_descriptor``: the goal image's descriptor (D,), when the
     goal is an image: every view is also compared with it, for the final approach
-    (``supervisor.goal_image_arrival``).
+    (``supervisor.goal_image_arrival``). ``node_columns``: the map's column profiles
+    (:attr:`maps.store.LoadedMap.columns`), needed with ``navigation.bearing.enabled``: each view's
+    profile is aligned with the target node's (:func:`descriptors.columns.column_shift`).
 
     Raises :class:`UnreachableGoalError` when the robot localised at a node from which no arc
     chain leads to the goal, :class:`HalError` when the base gives no camera image; the base is
@@ -238,6 +243,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         if goal_view.shape != (nodes.shape[1],):
             raise ValueError(f"goal_descriptor must have the map's descriptor length {nodes.shape[1]}, "
                              f"got shape {np.shape(goal_descriptor)}")
+    columns_of = _bearing_columns(config, topomap, descriptor, node_columns)
     belief, belief_setup = map_belief(topomap, config.belief)
     if belief is None and config.localiser.from_belief != "off":
         config = replace(config, localiser=replace(config.localiser, from_belief="off"))
@@ -271,7 +277,13 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
             last_stamp = frame.stamp_s
 
             t0 = time.perf_counter()
-            views = np.asarray(descriptor.describe_thirds([frame.rgb]), dtype=np.float32)[0]
+            bearings = None
+            if columns_of is None:
+                views = np.asarray(descriptor.describe_thirds([frame.rgb]), dtype=np.float32)[0]
+            else:
+                described, view_columns = descriptor.describe_with_columns([frame.rgb])
+                views = np.asarray(described, dtype=np.float32)[0]
+                bearings = _bearings(np.asarray(view_columns, dtype=np.float32)[0], columns_of)
             similarities = nodes @ views[0]
             goal_score = None if goal_view is None else float(goal_view @ views[0])
             policy = action_policy.for_frame(frame.rgb) if action_policy is not None else None
@@ -286,7 +298,7 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
                                   thirds_contrast=contrast_thirds(thirds) if thirds_contrast else None,
                                   heading_rad=heading.update(frame), policy=policy, belief=snapshot,
                                   goal_score=goal_score, stalled=stall.update(frame) if stall else False,
-                                  travelled_m=distance.update(frame))
+                                  travelled_m=distance.update(frame), bearings=bearings)
             applied = base.apply(step.velocity)
             if stall is not None:
                 stall.applied(applied, driving=step.state in DRIVING_STATES)
@@ -322,6 +334,36 @@ def run_episode(base: RobotBase, topomap: TopoMap, descriptor: Descriptor, goal_
         relocalisations=step.relocalisations if step is not None else 0,
         replans=step.replans if step is not None else 0,
         thresholds=config.thresholds, timings=tuple(timings), belief_setup=belief_setup)
+
+
+def _bearing_columns(config: NavigationConfig, topomap: TopoMap, descriptor: Descriptor,
+                     node_columns: Optional[np.ndarray]) -> Optional[dict]:
+    """node id -> its column profile when ``navigation.bearing`` is on, else None; raises
+    MapError for a map or descriptor without column profiles."""
+    if not config.bearing.enabled:
+        return None
+    fix = "rebuild the map from its recording, or set navigation.bearing.enabled: false"
+    if node_columns is None:
+        raise MapError(f"navigation.bearing.enabled: the map has no column profiles (made before 2026-12-07, or "
+                       f"with a descriptor that gives none); {fix}")
+    if not has_columns(descriptor):
+        raise MapError(f"navigation.bearing.enabled: the descriptor {descriptor.identity.backend!r} gives no "
+                       f"column profiles; {fix}")
+    columns = np.asarray(node_columns, dtype=np.float32)
+    if columns.ndim != 3 or columns.shape[0] != len(topomap):
+        raise MapError(f"node_columns must have shape ({len(topomap)}, W, C), got {columns.shape}")
+    return {int(n): columns[k] for k, n in enumerate(topomap.node_ids.tolist())}
+
+
+def _bearings(view: np.ndarray, columns_of: dict) -> Callable[[int], Optional[float]]:
+    """``bearing(node)``: where the node's view lies in ``view`` (a fraction of its width,
+    positive to the left); None for a profile of another width."""
+    def bearing(node: int) -> Optional[float]:
+        reference = columns_of.get(int(node))
+        if reference is None or reference.shape != view.shape:
+            return None
+        return column_shift(view, reference)[0]
+    return bearing
 
 
 def _notify(observer: Optional[Observer], record: StepRecord) -> Optional[str]:

@@ -244,7 +244,8 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
                 "appearance_seed": episode.appearance_seed, "sim_seed": sim_config.seed, "max_steps": budget,
                 "success_radius_m": SUCCESS_RADIUS_M, "thresholds_from_map": config.episode.thresholds_from_map,
                 "descriptor": loaded.identity.backend,
-                "method": "voter" if action_policy is None else action_policy.name,
+                "method": ("bearing" if nav_config.bearing.enabled else "voter") if action_policy is None
+                else action_policy.name,
             }
             collisions_before = truth.collision_count()
             if viewer is not None:
@@ -252,7 +253,8 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
             recorder = _TruthRecorder(base, video, bar, log, viewer)
             outcome = run_episode(base, loaded.topomap, descriptor, resolved.node, nav_config, budget,
                                   observer=recorder, thirds_contrast=config.episode.thirds_contrast,
-                                  action_policy=action_policy, goal_descriptor=resolved.descriptor)
+                                  action_policy=action_policy, goal_descriptor=resolved.descriptor,
+                                  node_columns=loaded.columns)
             collisions = truth.collision_count() - collisions_before
             toppled = truth.toppled()
     finally:

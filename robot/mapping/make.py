@@ -15,7 +15,7 @@ from typing import Callable, Iterable, Optional, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from descriptors.base import Descriptor
+from descriptors.base import Descriptor, has_columns
 from maps.calibration import similarity_sample
 from maps.config import MappingConfig
 from maps.pictures import draw_map_picture, draw_similarity_picture
@@ -88,6 +88,18 @@ def fit_and_describe(descriptor: Descriptor, images: Sequence[np.ndarray], fit_m
         descriptor.fit_features(features[picks])
     return np.concatenate([np.asarray(descriptor.aggregate(features[i:i + 64]), dtype=np.float32)
                            for i in range(0, len(features), 64)], axis=0)
+
+
+def node_columns(descriptor: Descriptor, keyframes: Sequence[np.ndarray],
+                 progress: bool = True) -> Optional[np.ndarray]:
+    """``(n_nodes, W, C)`` column profiles of the nodes' keyframes (steering by bearing,
+    :mod:`descriptors.columns`), or None for a descriptor that gives none."""
+    if not has_columns(descriptor):
+        return None
+    rows = []
+    for image in tqdm(keyframes, unit="node", desc="column profiles", disable=not progress):
+        rows.append(np.asarray(descriptor.describe_with_columns([image])[1], dtype=np.float32))
+    return np.concatenate(rows, axis=0)
 
 
 def vocabulary_frames(images: Sequence[np.ndarray], max_frames: int) -> list[np.ndarray]:
@@ -173,13 +185,15 @@ def build_map_from_frames(frames: Iterable[MapFrame], descriptor: Descriptor, co
         made.topomap.set_gyro_yaw(node.node_id, gyro.get(node.keyframe_index))
     by_index = {f.index: f.rgb for f in kept}
     thumbnails = {node.node_id: by_index[node.keyframe_index] for node in made.topomap.nodes()}
+    columns = node_columns(descriptor, [by_index[node.keyframe_index] for node in made.topomap.nodes()],
+                           progress=progress)
     sample = similarity_sample(x)
     merged = made.merge.merged if made.merge is not None else None
     summary = {**(extra or {}), "source": source, "frames_read": len(kept), **made.summary()}
     save_map(map_dir, made.topomap, identity=descriptor.identity, descriptor_state=descriptor.state_dict(),
              thresholds=made.thresholds, thumbnails=thumbnails,
              calibration=made.calibration.to_dict() if made.calibration is not None else None,
-             log=made.log, similarity=sample, merged=merged, extra=summary)
+             log=made.log, similarity=sample, merged=merged, extra=summary, columns=columns)
     summary["map_bytes_per_node"] = int(map_size(map_dir).per_node_bytes)
     _draw_pictures(made.topomap, map_dir, thumbnails.get, world_picture, sample, made.log, merged)
     if viewer is not None:
