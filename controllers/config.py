@@ -528,9 +528,10 @@ class BearingConfig:
     the heading error (about 0.15 of the view per 10 deg with the Limo's 65 deg camera) and with
     the distance beside the mapped line (about 0.1 per half metre), so nulling it brings the
     robot back onto the drive's heading and towards its line (bearing-only teach and repeat).
-    Needs a map with column profiles (made since 2026-12-07)."""
+    Needs a map with column profiles (made since 2026-12-07); an older map is steered by the
+    thirds, with a note (:func:`robot.episode.setup.configure_bearing`)."""
 
-    enabled: bool = False
+    enabled: bool = True
     deadband: float = 0.04
     turn: float = 0.25
 
@@ -561,7 +562,7 @@ class NavigationConfig:
     turn_room: TurnRoomConfig = field(default_factory=TurnRoomConfig)
     #: turning back when the robot faces away from the route (the voter only)
     heading_guard: HeadingGuardConfig = field(default_factory=HeadingGuardConfig)
-    #: steering by the bearing of the target's view instead of the thirds (off by default)
+    #: steering by the bearing of the target's view instead of the thirds
     bearing: BearingConfig = field(default_factory=BearingConfig)
     #: The two-cycle voter executes on every second tick. True: the executed action is held
     #: through the next (storing) tick, i.e. each decision lasts one two-tick vote period

@@ -97,7 +97,9 @@ def test_the_chooser_of_a_configuration_with_bearing():
     on = NavigationConfig(bearing=BearingConfig(enabled=True, deadband=0.05, turn=0.3))
     nav = Navigator(graph, (0, 1, 2), 2, on)
     assert isinstance(nav.chooser, BearingChooser) and nav.chooser.turn == 0.3
-    assert isinstance(Navigator(graph, (0, 1, 2), 2, NavigationConfig()).chooser, VoterChooser)
+    assert isinstance(Navigator(graph, (0, 1, 2), 2, NavigationConfig()).chooser, BearingChooser)   # the default
+    off = NavigationConfig(bearing=BearingConfig(enabled=False))
+    assert type(Navigator(graph, (0, 1, 2), 2, off).chooser) is VoterChooser
     assert on.as_published().bearing.enabled is False
     for bad in ({"deadband": -0.1}, {"turn": 0.01}, {"enabled": "yes"}):
         with pytest.raises(ValueError, match=next(iter(bad))):

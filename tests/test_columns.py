@@ -1,5 +1,7 @@
 """Column profiles and the shift that aligns two views (descriptors/columns.py)."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -86,3 +88,21 @@ def test_dense_descriptors_give_their_thirds_and_columns_from_one_pass():
         assert np.allclose(thirds, descriptor.describe_thirds(images))
         assert np.allclose(columns, column_profiles(descriptor.local_features(images)))
         assert columns.shape == (4, 10, 7)
+
+
+def test_a_map_without_column_profiles_is_steered_by_the_thirds_with_a_note():
+    from pathlib import Path
+    from types import SimpleNamespace
+
+    from controllers.config import BearingConfig, NavigationConfig
+    from robot.episode.setup import configure_bearing
+
+    on = NavigationConfig(bearing=BearingConfig(enabled=True))
+    old = SimpleNamespace(path=Path("maps/old"), columns=None)
+    used, note = configure_bearing(old, on)
+    assert not used.bearing.enabled and used == replace(on, bearing=replace(on.bearing, enabled=False))
+    assert "maps/old has no column profiles" in note and "rebuild" in note
+    new = SimpleNamespace(path=Path("maps/new"), columns=np.zeros((3, 10, 4)))
+    assert configure_bearing(new, on) == (on, None)
+    off = NavigationConfig(bearing=BearingConfig(enabled=False))
+    assert configure_bearing(old, off) == (off, None)

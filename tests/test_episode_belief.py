@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 import pytest
 
-from controllers.config import NavigationConfig, Thresholds
+from controllers.config import BearingConfig, NavigationConfig, Thresholds
 from core.hal import Odometry, Pose2D
 from maps.graph import TopoMap
 from robot.episode.belief import OdometryMotion, map_belief
@@ -18,8 +18,9 @@ from tests.memory_base import MemoryBase, _decode
 
 N_NODES = 12
 WIDTH_M = 0.7          # how far a view's likeness spreads along the chain: neighbours look alike
+# the chain's maps have no column profiles: the thirds steer (bearing off)
 CONFIG = NavigationConfig(thresholds=Thresholds(t_milestone=0.9, t_change_node=0.8, t_limited_control=0.6,
-                                                t_lost=0.3))
+                                                t_lost=0.3), bearing=BearingConfig(enabled=False))
 
 
 class SmoothChain:

@@ -15,8 +15,9 @@ from robot.episode.loop import EpisodeEnd, run_episode
 from tests.memory_base import ChainDescriptor, MemoryBase, encode_position
 
 N_NODES = 6
+# the chain's maps have no column profiles: the thirds steer (bearing off)
 CONFIG = NavigationConfig(thresholds=Thresholds(t_milestone=0.9, t_change_node=0.8, t_limited_control=0.6,
-                                                t_lost=0.3))
+                                                t_lost=0.3), bearing=BearingConfig(enabled=False))
 
 
 @pytest.fixture

@@ -6,6 +6,7 @@
   placed by ``navigation.threshold_fractions``; :func:`configure_thresholds` applies them unless
   ``episode.thresholds_from_map`` is false (then ``navigation.thresholds`` are used as written);
 * :func:`configure_heading` keeps ``navigation.heading_source`` unless the map lacks its headings.
+* :func:`configure_bearing` keeps ``navigation.bearing`` on unless the map lacks column profiles.
 """
 
 from __future__ import annotations
@@ -133,3 +134,14 @@ def configure_heading(loaded_map: LoadedMap, navigation: NavigationConfig) -> tu
     note = (f"the map {loaded_map.path} has no {source} headings (made before they were kept): the heading "
             "comes from the wheel odometry; rebuild the map from its recording to use the gyro's")
     return replace(navigation, heading_source="odometry"), note
+
+
+def configure_bearing(loaded_map: LoadedMap, navigation: NavigationConfig) -> tuple[NavigationConfig, Optional[str]]:
+    """``navigation`` with steering by bearing only where the map has column profiles, and a note
+    when it was switched off: a map made before they were kept (or with a descriptor that gives
+    none) is steered by the thirds, as before."""
+    if not navigation.bearing.enabled or loaded_map.columns is not None:
+        return navigation, None
+    note = (f"the map {loaded_map.path} has no column profiles (made before 2026-12-07, or with a descriptor "
+            "that gives none): the thirds steer; rebuild the map from its recording to steer by bearing")
+    return replace(navigation, bearing=replace(navigation.bearing, enabled=False)), note
