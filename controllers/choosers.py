@@ -69,7 +69,7 @@ class Choice:
 class ActionChooser(Protocol):
     """What the navigator needs of a chooser."""
 
-    #: the name the harness and the logs use ("voter", "policy")
+    #: the name the harness and the logs use ("voter", "bearing", "policy")
     name: str
     #: whether the navigator turns at corners by the map's odometry before this chooser steers
     #: (the voter's field of view misses a target beside it; a learned head does not need it)
