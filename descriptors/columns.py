@@ -7,8 +7,8 @@ beside each other, have profiles that agree best at a horizontal shift; :func:`c
 finds it to a fraction of a column. That shift is the bearing of the mapped view: steering to
 null it turns the robot back onto the mapping drive's heading, and, since near things shift more
 than far ones, back towards its line (bearing-only visual teach and repeat). Measured on the
-simulator's office and hospital under other lighting: about a column and a half (of ten) per
-10 deg of heading and one column per half metre beside the line (docs/results.md).
+simulator's office and hospital under other lighting: about 1.2 columns (of ten) per 10 deg
+of heading and up to one column per half metre beside the line (docs/results.md).
 """
 
 from __future__ import annotations

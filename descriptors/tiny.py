@@ -73,7 +73,9 @@ class TinyDescriptor:
     def describe_thirds(self, images: Sequence[np.ndarray]) -> np.ndarray:
         """Each third keeps the full vector's layout with everything outside its columns zeroed,
         so a third compares directly with a full-image descriptor."""
-        t, gx, gy = self._parts(self._thumbs(images))
+        return self._thirds(*self._parts(self._thumbs(images)))
+
+    def _thirds(self, t: np.ndarray, gx: np.ndarray, gy: np.ndarray) -> np.ndarray:
         rows = [self._join(t, gx, gy)]
         for a, b in third_bounds(t.shape[2]):
             keep = np.zeros(t.shape[2], dtype=np.float32)
@@ -84,6 +86,6 @@ class TinyDescriptor:
     def describe_with_columns(self, images: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """``(describe_thirds(images), column profiles (N, W, 2H - 1))``: per thumbnail column its
         pixels and vertical gradients, unit length (:mod:`descriptors.columns`)."""
-        t, _, gy = self._parts(self._thumbs(images))
+        t, gx, gy = self._parts(self._thumbs(images))
         columns = np.concatenate([t, gy], axis=1).transpose(0, 2, 1)
-        return self.describe_thirds(images), l2_normalise(columns)
+        return self._thirds(t, gx, gy), l2_normalise(columns)
