@@ -209,8 +209,8 @@ def save_map(path: str | Path, topomap: TopoMap, *, identity: DescriptorIdentity
 class LoadedMap:
     """A validated map folder. ``calibration`` is the calibration record or ``None``; ``log``
     and ``similarity`` are ``None`` when the folder has no walkthrough file; ``columns``
-    (float32, ``(n_nodes, W, C)``, row k = node ``topomap.node_ids[k]``) when it has no column
-    profiles (maps made before 2026-12-07, or with a descriptor that gives none)."""
+    (float32, ``(n_nodes, W, C)``, row k = node ``topomap.node_ids[k]``) is ``None`` when it has
+    no column profiles (maps made before 2026-12-07, or with a descriptor that gives none)."""
 
     path: Path
     topomap: TopoMap
