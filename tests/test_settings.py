@@ -27,3 +27,20 @@ def test_an_error_in_a_partial_file_names_it_and_the_field(tmp_path):
     with pytest.raises(ConfigError) as err:
         load_stack_config(path)
     assert str(path) in str(err.value) and "navigation.belief.confidence" in str(err.value)
+
+
+ABLATIONS = sorted((DEFAULT_CONFIG.parent / "ablation").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("path", ABLATIONS, ids=lambda p: p.stem)
+def test_each_ablation_turns_off_something_of_the_default_navigation_only(path):
+    default, ablated = load_stack_config(), load_stack_config(path)
+    assert path.read_text().startswith("# Ablation"), "say what the ablation leaves out on its first line"
+    assert ablated.navigation != default.navigation
+    assert ablated.sim == default.sim and ablated.mapping == default.mapping
+    assert ablated.descriptor == default.descriptor and ablated.episode == default.episode
+
+
+def test_the_ablations_are_all_different():
+    assert len(ABLATIONS) >= 9
+    assert len({load_stack_config(p).navigation for p in ABLATIONS}) == len(ABLATIONS)
