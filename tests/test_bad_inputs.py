@@ -1,5 +1,5 @@
 """Bad input, command by command: exit status 2, one line on stderr naming the option, file, field
-or value, no traceback, nothing written, and no robot moved (the README's rule, checked on 67
+or value, no traceback, nothing written, and no robot moved (the README's rule, checked on 69
 cases across every command of the project).
 
 Every case runs the real command in a subprocess, in an empty working folder; the inputs it needs
@@ -108,6 +108,8 @@ CASES = [
     ("bearing-unknown-node", "robot.bench", "bearing {map} --world {world} --nodes 9999", "9999"),
     ("bearing-bad-appearances", "robot.bench", "bearing {map} --appearances a,b", "--appearances"),
     ("bearing-json-is-a-folder", "robot.bench", "bearing {map} --json {in}/folder", "--json"),
+    ("compare-missing-run", "robot.bench", "compare {in}/norun", "no such run folder"),
+    ("compare-not-a-run", "robot.bench", "compare {in}/folder", "no episodes/ folder"),
     ("sim-steps-zero", "robot.bench", "sim --world {world} --steps 0", "--steps"),
     ("baseline-map-missing", "robot.bench", "baseline --map {in}/nomap --out {out}", "--map"),
     # the Limo tools

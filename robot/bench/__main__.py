@@ -21,6 +21,7 @@ COMMANDS = {
     "paper": ("robot.bench.paper", "the paper's table: SR/SPL per route for our method and the baseline"),
     "replay": ("robot.bench.replay", "replay one episode of a paper run with a per-step log; checks it reproduces"),
     "bearing": ("robot.bench.bearing", "the target view's bearing beside and turned off mapped places, on rendered views"),
+    "compare": ("robot.bench.compare", "runs of the paper harness side by side: one row per run, config changes named"),
     "belief": ("robot.bench.belief", "run the belief filter offline over replayed episodes, judged by true poses"),
 }
 

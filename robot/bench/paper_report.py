@@ -189,7 +189,7 @@ def write_report(out: Path, main: Sequence[dict], study: Sequence[dict], *, spec
     files = [write_text(out / "timings.json", json.dumps(timings, indent=2) + "\n")]
 
     table = _paper_table(routes, methods, summary)
-    diagnoses = _diagnoses([*main, *study], out, specs)
+    diagnoses = diagnose_episodes([*main, *study], out, specs)
     results["overall"] = overall(main, routes, methods, summary, diagnoses)
     files.insert(0, write_text(out / "results.json", json.dumps(results, indent=2) + "\n"))
     md = _markdown(command, table, routes, methods, summary, main, study, sparsity, sparsity_route,
@@ -220,7 +220,7 @@ def _paper_table(routes, methods, summary) -> str:
     return "\n".join(lines)
 
 
-def _diagnoses(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
+def diagnose_episodes(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
     """``{id(episode): Diagnosis}`` for the episodes with a step log of all their steps in ``out``
     and a map with true node poses (:mod:`robot.bench.diagnosis`); ``specs``: the world specs by
     name (the true goal of each route)."""
