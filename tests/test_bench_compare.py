@@ -49,8 +49,9 @@ def test_a_row_per_run_with_the_configuration_it_changes(runs):
     assert first["sr"] == pytest.approx(5 / 6, abs=1e-4) and second["sr"] == pytest.approx(2 / 3, abs=1e-4)
     assert first["collisions_per_episode"] == 0.5 and second["collisions_per_episode"] == pytest.approx(1 / 3, abs=1e-3)
     assert first["trials"] == 6 and first["steps"] == 600
-    table = format_rows([first, second], routes, "ours")
-    assert "(reference)" in table and "navigation.heading_guard.enabled=False" in table
+    table = format_rows([first, second, first], routes, "ours").splitlines()
+    assert "(reference)" in table[2] and "navigation.heading_guard.enabled=False" in table[3]
+    assert "(none)" in table[4]            # a later run that changes nothing is not the reference
 
 
 def test_the_first_trials_only_and_one_method_only(runs):

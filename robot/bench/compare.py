@@ -136,10 +136,11 @@ def format_rows(rows: Sequence[dict], routes: Sequence[str], method: str) -> str
     lines = [f"| run ({method}) | changes against the first | trials | SR {' / '.join(routes)} (mean) | "
              "SR 0.5 m | SPL | collisions per episode | wrong (re-)localisations | final p50 / p90 (m) | steps |",
              "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
+    for k, r in enumerate(rows):
+        changes = "(reference)" if k == 0 else r["changes"] or "(none)"
         wrong = ("-" if not r["localisations"] else
                  f"{r['wrong_localisations']} of {r['localisations']} ({r['wrong_localisations'] / r['localisations']:.0%})")
-        lines.append(f"| {r['run']} | {r['changes'] or '(reference)'} | {r['trials']} | "
+        lines.append(f"| {r['run']} | {changes} | {r['trials']} | "
                      + " / ".join(num(r["sr_per_route"][x]) for x in routes) + f" ({num(r['sr'])}) | "
                      f"{num(r['sr_0_5m'])} | {num(r['spl'])} | {num(r['collisions_per_episode'])} | {wrong} | "
                      f"{num(r['final_p50_m'])} / {num(r['final_p90_m'])} | {r['steps']:,} |")
