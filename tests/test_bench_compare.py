@@ -21,7 +21,8 @@ def _episode(run: Path, route: str, trial: int, success: bool, collisions: int =
                "steps": 100}
     folder = run / "episodes"
     folder.mkdir(parents=True, exist_ok=True)
-    (folder / f"hospital_{route}_{method}_{trial}.json").write_text(json.dumps({"trial": asdict(t), "metrics": metrics}))
+    episode = {"trial": asdict(t), "metrics": metrics}
+    (folder / f"hospital_{route}_{method}_{trial}.json").write_text(json.dumps(episode))
 
 
 @pytest.fixture()

@@ -20,7 +20,7 @@ COMMANDS = {
     "baseline": ("robot.bench.baseline", "train the SPTM-style learned action baseline from expert drives"),
     "paper": ("robot.bench.paper", "the paper's table: SR/SPL per route for our method and the baseline"),
     "replay": ("robot.bench.replay", "replay one episode of a paper run with a per-step log; checks it reproduces"),
-    "bearing": ("robot.bench.bearing", "the target view's bearing beside and turned off mapped places, on rendered views"),
+    "bearing": ("robot.bench.bearing", "the target view's bearing beside and turned off mapped places (rendered)"),
     "compare": ("robot.bench.compare", "runs of the paper harness side by side: one row per run, config changes named"),
     "belief": ("robot.bench.belief", "run the belief filter offline over replayed episodes, judged by true poses"),
 }

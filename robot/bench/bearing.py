@@ -50,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="degrees turned either way on the line (default 10)")
     parser.add_argument("--world", default=None, help="the world to render (default: the one the map names)")
     parser.add_argument("--config", type=Path, default=None,
-                        help="stack configuration (YAML): its descriptor and sim sections (default configs/default.yaml)")
+                        help="stack configuration (YAML): its descriptor and sim sections "
+                             "(default configs/default.yaml)")
     parser.add_argument("--json", type=Path, default=None, help="also write the table as JSON here")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 

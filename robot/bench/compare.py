@@ -138,8 +138,8 @@ def format_rows(rows: Sequence[dict], routes: Sequence[str], method: str) -> str
              "|---|---|---|---|---|---|---|---|---|---|"]
     for k, r in enumerate(rows):
         changes = "(reference)" if k == 0 else r["changes"] or "(none)"
-        wrong = ("-" if not r["localisations"] else
-                 f"{r['wrong_localisations']} of {r['localisations']} ({r['wrong_localisations'] / r['localisations']:.0%})")
+        n, bad = r["localisations"], r["wrong_localisations"]
+        wrong = "-" if not n else f"{bad} of {n} ({bad / n:.0%})"
         lines.append(f"| {r['run']} | {changes} | {r['trials']} | "
                      + " / ".join(num(r["sr_per_route"][x]) for x in routes) + f" ({num(r['sr'])}) | "
                      f"{num(r['sr_0_5m'])} | {num(r['spl'])} | {num(r['collisions_per_episode'])} | {wrong} | "
