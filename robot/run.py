@@ -244,18 +244,14 @@ def _navigate_serial(args, config):
     from robot.episode.goal import parse_goal, resolve_goal
     from robot.episode.loop import run_episode
     from robot.episode.metrics import compute_metrics
-    from robot.episode.setup import attach_descriptor, configure_bearing, configure_heading, configure_thresholds
+    from robot.episode.setup import attach_descriptor, configure_navigation
     from robot.viewer.navigation import navigation_viewer
 
     if args.goal is None:
         raise UsageError("--hal serial needs --goal (a node id or a goal image); routes exist only in simulation")
     loaded = load_map(args.map)
     descriptor = attach_descriptor(loaded, _make_descriptor(config))
-    nav, heading_note = configure_heading(loaded, configure_thresholds(loaded, config.navigation, config.episode))
-    nav, bearing_note = configure_bearing(loaded, nav)
-    for note in (heading_note, bearing_note):
-        if note is not None:
-            print(f"note: {note}", file=sys.stderr)
+    nav = configure_navigation(loaded, config.navigation, config.episode)
     goal = resolve_goal(parse_goal(args.goal), loaded.topomap, descriptor, nav)
     overrides = {k: v for k, v in (("port", args.port), ("baud", args.baud), ("camera", args.camera))
                  if v is not None}

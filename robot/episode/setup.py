@@ -6,11 +6,13 @@
   placed by ``navigation.threshold_fractions``; :func:`configure_thresholds` applies them unless
   ``episode.thresholds_from_map`` is false (then ``navigation.thresholds`` are used as written);
 * :func:`configure_heading` keeps ``navigation.heading_source`` unless the map lacks its headings.
-* :func:`configure_bearing` keeps ``navigation.bearing`` on unless the map lacks column profiles.
+* :func:`configure_bearing` keeps ``navigation.bearing`` on unless the map lacks column profiles;
+* :func:`configure_navigation` does all three for a run and says on stderr what it changed.
 """
 
 from __future__ import annotations
 
+import sys
 from dataclasses import replace
 from typing import Optional
 
@@ -145,3 +147,16 @@ def configure_bearing(loaded_map: LoadedMap, navigation: NavigationConfig) -> tu
     note = (f"the map {loaded_map.path} has no column profiles (made before 2026-12-07, or with a descriptor "
             "that gives none): the thirds steer; rebuild the map from its recording to steer by bearing")
     return replace(navigation, bearing=replace(navigation.bearing, enabled=False)), note
+
+
+def configure_navigation(loaded_map: LoadedMap, navigation: NavigationConfig,
+                         episode: EpisodeConfig) -> NavigationConfig:
+    """The navigation configuration a run on ``loaded_map`` uses: thresholds from the map
+    (:func:`configure_thresholds`), then the heading source and the bearing the map supports;
+    each fallback is printed as one ``note:`` line on stderr."""
+    nav, heading_note = configure_heading(loaded_map, configure_thresholds(loaded_map, navigation, episode))
+    nav, bearing_note = configure_bearing(loaded_map, nav)
+    for note in (heading_note, bearing_note):
+        if note is not None:
+            print(f"note: {note}", file=sys.stderr)
+    return nav

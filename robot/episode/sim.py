@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Optional, Union
@@ -43,7 +42,7 @@ from robot.episode.goal import ResolvedGoal, parse_goal, read_goal_image, resolv
 from robot.episode.loop import ActionPolicy, EpisodeOutcome, StepRecord, run_episode
 from robot.episode.metrics import SUCCESS_RADIUS_M, EpisodeMetrics, compute_metrics, format_summary
 from robot.episode.pictures import NavigationVideo, draw_trace
-from robot.episode.setup import attach_descriptor, configure_bearing, configure_heading, configure_thresholds
+from robot.episode.setup import attach_descriptor, configure_navigation
 from robot.episode.start import StartError, StartSpec, resolve_start, route_of, route_pose
 from robot.episode.step_log import StepLog
 from robot.settings import StackConfig
@@ -207,11 +206,7 @@ def run_sim_navigation(episode: SimEpisode, descriptor: Descriptor, config: Stac
     spec = episode.world if isinstance(episode.world, WorldSpec) else load_world(episode.world)
     loaded = loaded_map if loaded_map is not None else load_map(episode.map_dir)
     attach_descriptor(loaded, descriptor)
-    nav_config, heading_note = configure_heading(loaded, configure_thresholds(loaded, config.navigation, config.episode))
-    nav_config, bearing_note = configure_bearing(loaded, nav_config)
-    for note in (heading_note, bearing_note):
-        if note is not None:
-            print(f"note: {note}", file=sys.stderr)
+    nav_config = configure_navigation(loaded, config.navigation, config.episode)
     if episode.goal is None and episode.route is None:
         raise StartError("no goal: give --goal (node id or image file) or --route")
     start_pose, start_label = resolve_start(spec, loaded, episode.start, episode.route)
