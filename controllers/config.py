@@ -192,6 +192,12 @@ class SupervisorConfig:
     #: never passes under the day's light is otherwise driven past (nothing after the goal
     #: confirms it). False: its score alone (the paper).
     goal_by_belief: bool = True
+    #: Not in the paper. With ``goal_by_belief``, the belief confirms the goal only once the
+    #: odometry has driven the goal's incoming arc, less this many metres, since the goal's
+    #: predecessor was confirmed: a node's mass gathers the cells up to half an arc before it,
+    #: so on a long arc the belief alone confirmed the goal metres short. None: no odometry
+    #: check (also on maps without arc lengths).
+    goal_by_belief_short_m: Optional[float] = None
     #: Not in the paper. The settled goal node waits while the belief's mode is a path node
     #: before the goal, for at most the goal's incoming arc of driving since its confirmation:
     #: a node confirmed as the best of the map can be a metre short, where the belief, which
@@ -217,6 +223,8 @@ class SupervisorConfig:
         check_bool("goal_image_arrival", self.goal_image_arrival)
         check_bool("goal_by_belief", self.goal_by_belief)
         check_bool("goal_waits_for_belief", self.goal_waits_for_belief)
+        if self.goal_by_belief_short_m is not None:
+            check_range("goal_by_belief_short_m", self.goal_by_belief_short_m, 0.0, 100.0, what="a distance in metres")
         check_range("odometry_max_m", self.odometry_max_m, 0.0, 100.0, what="a distance in metres")
 
 

@@ -35,7 +35,10 @@ Additions, each for a failure seen in practice:
   route, in the order and at the distances the odometry drove, better than any other place. Only
   the target: from further back it skipped nodes and stopped short. Nodes before the goal that the views miss
   are confirmed by later ones; nothing lies after the goal, and a robot whose goal node never
-  passes by score drove past it and was lost a node later. The settle that follows decides
+  passes by score drove past it and was lost a node later. With ``goal_by_belief_short_m``, only
+  once the odometry has driven the goal's incoming arc, less that many metres, since the
+  predecessor was confirmed: a node's mass gathers the cells up to half an arc before it, so on a
+  long arc the belief alone confirmed the goal metres short. The settle that follows decides
   where to stop, as after any confirmation.
 * **Lost.** When the best filtered score inside the window stays below ``t_lost`` while some
   node outside the window scores higher (the view shows another place, not merely a poor view
@@ -236,7 +239,7 @@ class NodeSwitchSupervisor:
             return self._settle_at_goal(path_scores, travelled_m, belief_mode)
         here = float(path_scores[self._index])
         ahead = self._confirmable_ahead(path_scores, here)
-        by_belief = ahead is None and self._goal_by_belief(goal_mass)
+        by_belief = ahead is None and self._goal_by_belief(goal_mass, travelled_m)
         if by_belief:
             ahead = last
         if ahead is not None:
@@ -449,14 +452,21 @@ class NodeSwitchSupervisor:
             return None
         return first + k
 
-    def _goal_by_belief(self, goal_mass: Optional[float]) -> bool:
+    def _goal_by_belief(self, goal_mass: Optional[float], travelled_m: Optional[float]) -> bool:
         """Whether the belief confirms the goal node this tick (see the module docstring)."""
-        if not self.config.supervisor.goal_by_belief or goal_mass is None:
+        cfg = self.config.supervisor
+        if not cfg.goal_by_belief or goal_mass is None:
             return False
         if not math.isfinite(goal_mass):
             raise ValueError(f"goal_mass must be finite, got {goal_mass!r}")
-        return (goal_mass >= self.config.belief.confidence and self._state is SupervisorState.APPROACHING
-                and self._index + 1 == len(self.path) - 1)
+        if not (goal_mass >= self.config.belief.confidence and self._state is SupervisorState.APPROACHING
+                and self._index + 1 == len(self.path) - 1):
+            return False
+        short = cfg.goal_by_belief_short_m
+        if short is None or travelled_m is None or self._arcs is None or self._at_node_m is None:
+            return True
+        arc = self._arcs.get((self.path[self._index], self.path[-1]))
+        return arc is None or travelled_m - self._at_node_m >= arc - short
 
     def _decision(self, state: SupervisorState, path_scores: np.ndarray,
                   confirmed: Optional[NodeId], reason: str) -> SupervisorDecision:

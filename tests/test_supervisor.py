@@ -360,6 +360,36 @@ def test_the_belief_confirms_a_goal_node_whose_view_never_passes():
     assert all(off.tick(weak, goal_mass=1.0).state is SupervisorState.APPROACHING for _ in range(10))
 
 
+def test_on_a_long_goal_arc_the_belief_confirms_the_goal_only_near_its_end_by_odometry():
+    """A node's mass gathers the cells up to half an arc before it: on a 3 m goal arc the belief
+    held 0.6 at the goal 0.2 m past its predecessor and the robot stopped 2.5 m short. With
+    ``goal_by_belief_short_m`` the odometry must first have driven the arc less that much since
+    the predecessor's confirmation; without the distance, or with None, the belief alone decides."""
+    arcs = {(0, 1): 1.0, (1, 2): 3.0}
+    config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, goal_by_belief_short_m=0.5))
+    weak = row(5, n1=0.4, n2=TH.t_lost - 0.1, n4=TH.t_lost + 0.1)   # another place scores higher
+
+    def approach(config, arcs=arcs, travelled=True):
+        sup = NodeSwitchSupervisor([0, 1, 2], range(5), config, arc_lengths_m=arcs)
+        feed(sup, [row(5, n0=0.85, n1=0.3)] * 3 + [row(5, n0=0.5, n1=0.5)] * 2)
+        assert sup.tick(row(5, n0=0.4, n1=TH.t_milestone + 0.05), travelled_m=10.0).confirmed_node == 1
+        for _ in range(2):
+            sup.tick(row(5, n1=TH.t_change_node - 0.05, n2=0.3), travelled_m=10.1)
+        # 0.1 m per tick from 0.25 m past node 1; the belief holds 0.9 at the goal throughout
+        return [sup.tick(weak, goal_mass=0.9, travelled_m=10.25 + 0.1 * k if travelled else None)
+                for k in range(30)]
+
+    ds = approach(config)
+    first = next(k for k, d in enumerate(ds) if "goal in sight" in d.reason)
+    assert first == 23                                  # 2.55 m driven of the 3 m arc
+    assert "the belief holds 0.90 of its mass there" in ds[first].reason
+    assert "goal in sight" in approach(IMAGE)[0].reason  # the setting off: at once, as before
+    assert "goal in sight" in approach(config, travelled=False)[0].reason
+    assert "goal in sight" in approach(config, arcs=None)[0].reason
+    with pytest.raises(ValueError, match="goal_by_belief_short_m"):
+        replace(IMAGE.supervisor, goal_by_belief_short_m=-1.0)
+
+
 def test_the_belief_confirms_the_goal_only_once_the_node_before_it_is_left():
     sup = NodeSwitchSupervisor([0, 1, 2], range(5), IMAGE)
     feed(sup, [row(5, n0=0.85, n1=0.3)] * 3 + [row(5, n0=0.5, n1=0.5)] * 2)
