@@ -192,12 +192,12 @@ class SupervisorConfig:
     #: never passes under the day's light is otherwise driven past (nothing after the goal
     #: confirms it). False: its score alone (the paper).
     goal_by_belief: bool = True
-    #: Not in the paper. With ``goal_by_belief``, the belief confirms the goal only once the
-    #: odometry has driven the goal's incoming arc, less this many metres, since the goal's
-    #: predecessor was confirmed: a node's mass gathers the cells up to half an arc before it,
-    #: so on a long arc the belief alone confirmed the goal metres short. None: no odometry
-    #: check (also on maps without arc lengths).
-    goal_by_belief_short_m: Optional[float] = None
+    #: Not in the paper. The goal is neither confirmed by the belief (``goal_by_belief``) nor, without
+    #: a goal image past ``t_milestone``, settled before the odometry has driven the goal's incoming
+    #: arc, less this many metres, since the goal's predecessor was confirmed: a node's mass, and a
+    #: goal node's best-of-map score, reach up to half an arc before it, so on a long arc the robot
+    #: stopped metres short. None: no odometry check (also on maps without arc lengths).
+    goal_odometry_short_m: Optional[float] = None
     #: Not in the paper. The settled goal node waits while the belief's mode is a path node
     #: before the goal, for at most the goal's incoming arc of driving since its confirmation:
     #: a node confirmed as the best of the map can be a metre short, where the belief, which
@@ -223,8 +223,8 @@ class SupervisorConfig:
         check_bool("goal_image_arrival", self.goal_image_arrival)
         check_bool("goal_by_belief", self.goal_by_belief)
         check_bool("goal_waits_for_belief", self.goal_waits_for_belief)
-        if self.goal_by_belief_short_m is not None:
-            check_range("goal_by_belief_short_m", self.goal_by_belief_short_m, 0.0, 100.0, what="a distance in metres")
+        if self.goal_odometry_short_m is not None:
+            check_range("goal_odometry_short_m", self.goal_odometry_short_m, 0.0, 100.0, what="a distance in metres")
         check_range("odometry_max_m", self.odometry_max_m, 0.0, 100.0, what="a distance in metres")
 
 
@@ -643,6 +643,7 @@ class NavigationConfig:
                               compass_bandwidth_deg=0.0),
             supervisor=replace(self.supervisor, confirm_best_of_map=False, goal_settle_ticks=0,
                                goal_image_arrival=False, goal_by_belief=False, goal_waits_for_belief=False,
+                               goal_odometry_short_m=None,
                                odometry_max_m=0.0),
             recovery=replace(self.recovery, enabled=False), turn_room=replace(self.turn_room, enabled=False),
             heading_guard=replace(self.heading_guard, enabled=False), bearing=replace(self.bearing, enabled=False),

@@ -35,7 +35,7 @@ Additions, each for a failure seen in practice:
   route, in the order and at the distances the odometry drove, better than any other place. Only
   the target: from further back it skipped nodes and stopped short. Nodes before the goal that the views miss
   are confirmed by later ones; nothing lies after the goal, and a robot whose goal node never
-  passes by score drove past it and was lost a node later. With ``goal_by_belief_short_m``, only
+  passes by score drove past it and was lost a node later. With ``goal_odometry_short_m``, only
   once the odometry has driven the goal's incoming arc, less that many metres, since the
   predecessor was confirmed: a node's mass gathers the cells up to half an arc before it, so on a
   long arc the belief alone confirmed the goal metres short. The settle that follows decides
@@ -155,6 +155,7 @@ class NodeSwitchSupervisor:
         self._goal_flat = 0
         self._goal_reason = ""
         self._goal_seen_m: Optional[float] = None   # odometry distance at the goal's confirmation
+        self._goal_from_m: Optional[float] = None   # ... and at its predecessor's (None: skipped)
         # the goal image's filtered score and its peak during the final approach (image goals)
         self._image_filter = SimilarityFilter(1, config.filter)
         self._image: Optional[float] = None
@@ -243,6 +244,7 @@ class NodeSwitchSupervisor:
         if by_belief:
             ahead = last
         if ahead is not None:
+            from_m = self._at_node_m if self._index == last - 1 else None
             passed = self.path[self._index + 1:ahead]
             confirmed = self.path[ahead]
             self._index, self._state = ahead, SupervisorState.LEAVING
@@ -266,7 +268,7 @@ class NodeSwitchSupervisor:
                 self._index = last - 1
                 self._state = SupervisorState.APPROACHING
                 self._goal_peak, self._goal_flat, self._goal_reason = score, 0, "goal " + reason
-                self._goal_seen_m = travelled_m
+                self._goal_seen_m, self._goal_from_m = travelled_m, from_m
                 return self._decision(self._state, path_scores, None,
                                       f"goal in sight: {reason}; driving on while it improves")
         elif self._state is SupervisorState.LEAVING and here < thresholds.t_change_node:
@@ -361,7 +363,10 @@ class NodeSwitchSupervisor:
         waits (``goal_waits_for_belief``) while the belief's mode is a path node before the goal,
         for at most the goal's incoming arc of driving since its confirmation: a node confirmed
         as the best of the map can be a metre short, where the belief, which has the odometry
-        since the previous nodes, still places the robot.
+        since the previous nodes, still places the robot. With ``goal_odometry_short_m`` it also
+        waits until the odometry has driven the goal's arc, less that setting, since the goal's
+        predecessor: on a long arc the best-of-map score and the belief's mode both reach the
+        goal node half an arc before it.
         """
         last = len(self.path) - 1
         score = float(path_scores[last])
@@ -379,7 +384,8 @@ class NodeSwitchSupervisor:
         # robot is closing in on the place it shows: the node alone stopped a metre short there
         image_rising = (not image_in_play and self._image_peak is not None
                         and self._image_flat < cfg.goal_settle_ticks)
-        short = "" if image_in_play else self._belief_short(travelled_m, belief_mode)
+        short = "" if image_in_play else (self._belief_short(travelled_m, belief_mode)
+                                          or self._odometry_short(travelled_m, self._goal_from_m))
         if (self._image_settled and (at_node or self._node_settled)) or (
                 self._node_settled and not image_in_play and not image_rising and not short):
             why = "; ".join(w for w in (self._node_settled, self._image_settled) if w)
@@ -405,6 +411,20 @@ class NodeSwitchSupervisor:
             return ""
         return (f"; the belief still places the robot at node {belief_mode!r}, before the goal "
                 f"(drove {driven:.2f} of the goal arc's {arc:.2f} m since its confirmation)")
+
+    def _odometry_short(self, travelled_m: Optional[float], from_m: Optional[float]) -> str:
+        """Why the goal waits for the odometry (``goal_odometry_short_m``), or "": driven less
+        than the goal's incoming arc, less that setting, since its predecessor (at ``from_m``)."""
+        short = self.config.supervisor.goal_odometry_short_m
+        if short is None or travelled_m is None or from_m is None or self._arcs is None:
+            return ""
+        last = len(self.path) - 1
+        arc = self._arcs.get((self.path[last - 1], self.path[last]))
+        driven = travelled_m - from_m
+        if arc is None or driven >= arc - short:
+            return ""
+        return (f"; the odometry has driven {driven:.2f} m of the goal arc's {arc:.2f} m since node "
+                f"{self.path[last - 1]!r} (arrival from {arc - short:.2f} m)")
 
     def _image_arrival(self) -> str:
         """Whether the view has passed the place the goal image shows (a reason), or "".
@@ -462,11 +482,7 @@ class NodeSwitchSupervisor:
         if not (goal_mass >= self.config.belief.confidence and self._state is SupervisorState.APPROACHING
                 and self._index + 1 == len(self.path) - 1):
             return False
-        short = cfg.goal_by_belief_short_m
-        if short is None or travelled_m is None or self._arcs is None or self._at_node_m is None:
-            return True
-        arc = self._arcs.get((self.path[self._index], self.path[-1]))
-        return arc is None or travelled_m - self._at_node_m >= arc - short
+        return not self._odometry_short(travelled_m, self._at_node_m)
 
     def _decision(self, state: SupervisorState, path_scores: np.ndarray,
                   confirmed: Optional[NodeId], reason: str) -> SupervisorDecision:

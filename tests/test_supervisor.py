@@ -363,10 +363,10 @@ def test_the_belief_confirms_a_goal_node_whose_view_never_passes():
 def test_on_a_long_goal_arc_the_belief_confirms_the_goal_only_near_its_end_by_odometry():
     """A node's mass gathers the cells up to half an arc before it: on a 3 m goal arc the belief
     held 0.6 at the goal 0.2 m past its predecessor and the robot stopped 2.5 m short. With
-    ``goal_by_belief_short_m`` the odometry must first have driven the arc less that much since
+    ``goal_odometry_short_m`` the odometry must first have driven the arc less that much since
     the predecessor's confirmation; without the distance, or with None, the belief alone decides."""
     arcs = {(0, 1): 1.0, (1, 2): 3.0}
-    config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, goal_by_belief_short_m=0.5))
+    config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, goal_odometry_short_m=0.5))
     weak = row(5, n1=0.4, n2=TH.t_lost - 0.1, n4=TH.t_lost + 0.1)   # another place scores higher
 
     def approach(config, arcs=arcs, travelled=True):
@@ -386,8 +386,37 @@ def test_on_a_long_goal_arc_the_belief_confirms_the_goal_only_near_its_end_by_od
     assert "goal in sight" in approach(IMAGE)[0].reason  # the setting off: at once, as before
     assert "goal in sight" in approach(config, travelled=False)[0].reason
     assert "goal in sight" in approach(config, arcs=None)[0].reason
-    with pytest.raises(ValueError, match="goal_by_belief_short_m"):
-        replace(IMAGE.supervisor, goal_by_belief_short_m=-1.0)
+    with pytest.raises(ValueError, match="goal_odometry_short_m"):
+        replace(IMAGE.supervisor, goal_odometry_short_m=-1.0)
+
+
+def test_on_a_long_goal_arc_a_goal_confirmed_as_the_best_of_the_map_waits_for_the_odometry():
+    """On a 3 m goal arc the goal node's score is the best of the map 1.4 m short and then stays
+    flat: the settle stopped there. With ``goal_odometry_short_m`` it waits until the odometry
+    has driven the arc less that much since the goal's predecessor; a goal image past
+    ``t_milestone`` still decides alone."""
+    arcs = {(0, 1): 1.0, (1, 2): 3.0}
+
+    def approach(short, goal_score=None):
+        config = replace(IMAGE, supervisor=replace(IMAGE.supervisor, confirm_best_of_map=True,
+                                                    goal_odometry_short_m=short))
+        sup = NodeSwitchSupervisor([0, 1, 2], range(5), config, arc_lengths_m=arcs)
+        feed(sup, [row(5, n0=0.85, n1=0.3)] * 3 + [row(5, n0=0.5, n1=0.5)] * 2)
+        sup.tick(row(5, n0=0.4, n1=TH.t_milestone + 0.05), travelled_m=0.0)   # at node 1 from 0 m
+        for _ in range(2):
+            sup.tick(row(5, n1=TH.t_change_node - 0.05, n2=0.3), travelled_m=0.1)
+        assert sup.target_node == 2
+        weak = row(5, n1=0.3, n2=TH.t_lost + 0.05)      # the best of the map, below t_milestone
+        d = sup.tick(weak, travelled_m=1.6, goal_score=goal_score)
+        assert "goal in sight" in d.reason
+        states = [sup.tick(weak, travelled_m=1.65 + 0.05 * k, goal_score=goal_score).state for k in range(40)]
+        return states.index(SupervisorState.GOAL_REACHED) if SupervisorState.GOAL_REACHED in states else None
+
+    settle = IMAGE.supervisor.goal_settle_ticks
+    assert approach(None) == settle - 1                # settles 1.4 m short, as before
+    assert approach(0.5) == 17                         # 1.65 + 0.85 = 2.5 m driven of the 3 m arc
+    assert approach(2.0) == settle - 1                 # 1.0 m of the arc suffices: no wait
+    assert approach(0.5, goal_score=TH.t_milestone + 0.1) <= settle   # the goal image decides
 
 
 def test_the_belief_confirms_the_goal_only_once_the_node_before_it_is_left():
