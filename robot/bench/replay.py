@@ -203,6 +203,7 @@ def main(args: argparse.Namespace) -> int:
     from robot.bench.trials import config_digest
     from robot.settings import load_stack_config
 
+    given = args.config
     args.config = replay_config(args.episode, args.config)
     try:
         config = load_stack_config(args.config)
@@ -212,8 +213,11 @@ def main(args: argparse.Namespace) -> int:
     if trial.config_digest is not None:
         digest = config_digest(config)
         if digest != trial.config_digest:
+            why = ("pass the run's --config to reproduce it" if given is not None or args.config is None else
+                   f"{args.config} is the run's record, read over configs/default.yaml: a field the code added "
+                   "since takes today's default unless the record names it")
             print(f"note: the configuration differs from the one the episode ran with (digest {digest}, recorded "
-                  f"{trial.config_digest}); pass the run's --config to reproduce it", file=sys.stderr)
+                  f"{trial.config_digest}); {why}", file=sys.stderr)
     try:
         trial, notes = locate_inputs(trial, run_folder(args.episode), config, progress=not args.quiet)
     except ReplayError as exc:
