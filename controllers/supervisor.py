@@ -401,11 +401,10 @@ class NodeSwitchSupervisor:
 
     def _belief_short(self, travelled_m: Optional[float], belief_mode: Optional[NodeId]) -> str:
         """Why the settled goal waits for the belief (see :meth:`_settle_at_goal`), or ""."""
-        last = len(self.path) - 1
-        if not (self.config.supervisor.goal_waits_for_belief and belief_mode in self.path[:last]
-                and travelled_m is not None and self._goal_seen_m is not None and self._arcs is not None):
+        arc = self._goal_arc_m()
+        if not (self.config.supervisor.goal_waits_for_belief and belief_mode in self.path[:-1]
+                and travelled_m is not None and self._goal_seen_m is not None):
             return ""
-        arc = self._arcs.get((self.path[last - 1], self.path[last]))
         driven = travelled_m - self._goal_seen_m
         if arc is None or not driven < arc:
             return ""
@@ -415,16 +414,20 @@ class NodeSwitchSupervisor:
     def _odometry_short(self, travelled_m: Optional[float], from_m: Optional[float]) -> str:
         """Why the goal waits for the odometry (``goal_odometry_short_m``), or "": driven less
         than the goal's incoming arc, less that setting, since its predecessor (at ``from_m``)."""
-        short = self.config.supervisor.goal_odometry_short_m
-        if short is None or travelled_m is None or from_m is None or self._arcs is None:
+        short, arc = self.config.supervisor.goal_odometry_short_m, self._goal_arc_m()
+        if short is None or travelled_m is None or from_m is None or arc is None:
             return ""
-        last = len(self.path) - 1
-        arc = self._arcs.get((self.path[last - 1], self.path[last]))
         driven = travelled_m - from_m
-        if arc is None or driven >= arc - short:
+        if driven >= arc - short:
             return ""
         return (f"; the odometry has driven {driven:.2f} m of the goal arc's {arc:.2f} m since node "
-                f"{self.path[last - 1]!r} (arrival from {arc - short:.2f} m)")
+                f"{self.path[-2]!r} (arrival from {arc - short:.2f} m)")
+
+    def _goal_arc_m(self) -> Optional[float]:
+        """The mapped length of the arc into the goal node (None: no arc lengths, or none there)."""
+        if self._arcs is None or len(self.path) < 2:
+            return None
+        return self._arcs.get((self.path[-2], self.path[-1]))
 
     def _image_arrival(self) -> str:
         """Whether the view has passed the place the goal image shows (a reason), or "".
