@@ -6,6 +6,7 @@ import math
 import pytest
 
 from robot.bench.diagnosis import (
+    Diagnosis,
     StepLogError,
     collision_onsets,
     confirmation_counts,
@@ -164,3 +165,18 @@ def test_collisions_are_told_by_what_the_robot_was_commanded_then():
     assert confirmation_counts([d, d])["collisions"] == {"driving": 2, "turning in place": 6}
     # a log without the count (written before it was logged, or not by the simulator) has none
     assert collision_onsets(STEPS) == () and "collisions" not in diagnose(STEPS, POSES).summary()
+
+
+def test_a_diagnosis_survives_an_episode_record():
+    """The harness keeps each episode's diagnosis in its JSON record (the step logs are not
+    committed); read back, it is the same diagnosis, pinned stretches and collisions included."""
+    stuck = [_moving(i, "right", x=5.0, yaw=88.0) for i in range(25)]
+    bumps = [{**_moving(i, "forward", x=0.02 * i), "collisions": i // 3} for i in range(6)]
+    steps = STEPS + [{**s, "step": 11 + i} for i, s in enumerate(stuck + bumps)]
+    d = diagnose(steps, POSES, goal=(3, (0.0, 0.5)))
+    assert d.pinned and d.collisions and d.wrong and d.lost and d.goal_node == 3
+    back = Diagnosis.from_dict(json.loads(json.dumps(d.to_dict())))
+    assert back == d and back.summary() == d.summary()
+    assert confirmation_counts([back]) == confirmation_counts([d])
+    with pytest.raises(TypeError):
+        Diagnosis.from_dict({**d.to_dict(), "confirmations": [{"step": 1}]})

@@ -193,8 +193,19 @@ def test_report_only_reports_the_finished_episodes_and_runs_none(serial_run, tmp
     assert not (other / "results.json").exists()
 
 
-def test_the_report_leaves_out_a_step_log_of_another_run(serial_run, capsys):
+def test_episodes_keep_their_diagnosis_and_the_report_reads_it_without_the_logs(serial_run, capsys):
+    """An episode run with --step-logs keeps its step log's diagnosis in its record (the logs are
+    not committed); the report reads the record first, a log only for a record without one."""
+    from robot.bench.diagnosis import Diagnosis, diagnose, map_node_poses, read_step_log
+
     out, argv = serial_run
+    ours = next((out / "episodes").glob("*_ours_0.json"))
+    episode = json.loads(ours.read_text())
+    ours_log = paper.step_log_path(out, paper.Trial(**episode["trial"]))
+    if episode["metrics"]["steps"] > 0:
+        found = diagnose(read_step_log(ours_log), map_node_poses(out / episode["trial"]["map_dir"]))
+        assert Diagnosis.from_dict(episode["diagnosis"]).confirmations == found.confirmations
+    records = {p: p.read_text() for p in (out / "episodes").glob("*.json")}
     logs = sorted((out / "replays").glob("*.steps.jsonl"))
     assert logs
     kept = {log: log.read_text() for log in logs}
@@ -202,30 +213,33 @@ def test_the_report_leaves_out_a_step_log_of_another_run(serial_run, capsys):
         for log in logs:                # as if the episodes had run again since, without --step-logs
             log.write_text(kept[log].splitlines()[0] + "\n")
         assert paper.main(_args(*argv, "--report-only")) == 0
+        assert "a log of an earlier run" not in capsys.readouterr().err       # the records hold theirs
+        assert ("## Place recognition in the loop" in (out / "results.md").read_text()) == any(
+            json.loads(text).get("diagnosis", {}).get("confirmations") for text in records.values())
+        for path, text in records.items():      # records of older runs hold no diagnosis
+            path.write_text(json.dumps({k: v for k, v in json.loads(text).items() if k != "diagnosis"}))
+        assert paper.main(_args(*argv, "--report-only")) == 0
         err = capsys.readouterr().err
         assert "a log of an earlier run, left out of the report" in err and logs[0].name in err
         assert "## Place recognition in the loop" not in (out / "results.md").read_text()
-    finally:
         for log, text in kept.items():
             log.write_text(text)
-    # a confirmation moved 5 m from where the robot stood counts as wrong, in the table and the pictures
-    from robot.bench.diagnosis import diagnose, map_node_poses
-
-    ours_log = next(log for log in logs if "_ours_" in log.name)
-    steps = [json.loads(line) for line in kept[ours_log].splitlines()]
-    episode = json.loads(next((out / "episodes").glob("*_ours_0.json")).read_text())
-    found = diagnose(steps, map_node_poses(out / episode["trial"]["map_dir"]))   # relative to the run
-    right = next((c for c in found.confirmations if not c.is_wrong()), None)
-    if right is not None:
-        try:
+        # a confirmation moved 5 m from where the robot stood counts as wrong, in the table and the pictures
+        steps = [json.loads(line) for line in kept[ours_log].splitlines()]
+        found = diagnose(steps, map_node_poses(out / episode["trial"]["map_dir"]))   # relative to the run
+        right = next((c for c in found.confirmations if not c.is_wrong()), None)
+        if right is not None:
             steps[right.step]["x_m"] += 5.0
             ours_log.write_text("".join(json.dumps(e) + "\n" for e in steps))
             assert paper.main(_args(*argv, "--report-only")) == 0
             section = (out / "results.md").read_text().split("## Place recognition in the loop")[1]
             row = next(line for line in section.splitlines() if line.startswith("| tiny_world short | ours |"))
             assert int(row.split(" | ")[4]) == len(found.wrong) + 1      # one more wrong confirmation
-        finally:
-            ours_log.write_text(kept[ours_log])
+    finally:
+        for log, text in kept.items():
+            log.write_text(text)
+        for path, text in records.items():
+            path.write_text(text)
     assert paper.main(_args(*argv, "--report-only")) == 0
 
 

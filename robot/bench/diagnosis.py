@@ -38,7 +38,7 @@ from __future__ import annotations
 import json
 import math
 import statistics
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Iterable, Mapping, Optional, Sequence
 
@@ -149,6 +149,18 @@ class Diagnosis:
     belief_confident_right: int = 0
     pinned: tuple[PinnedStretch, ...] = ()
     collisions: tuple[CollisionOnset, ...] = ()
+
+    def to_dict(self) -> dict:
+        """Plain lists and scalars for an episode's JSON record (:meth:`from_dict` reads it back)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping) -> "Diagnosis":
+        """The diagnosis :meth:`to_dict` wrote; raises ``KeyError`` / ``TypeError`` on another mapping."""
+        parts = {"confirmations": Confirmation, "lost": LostEvent, "pinned": PinnedStretch,
+                 "collisions": CollisionOnset}
+        return cls(**{key: tuple(parts[key](**item) for item in value) if key in parts else value
+                      for key, value in data.items()})
 
     def collisions_by_doing(self) -> dict:
         """``{"turning in place": 7, "driving": 2}``: the collisions by what the robot was doing."""

@@ -101,8 +101,9 @@ def _overall_lines(over: dict, routes: Sequence[tuple[str, str]]) -> list[str]:
     lines = ["## Over all routes", "",
              f"Each method over the {len(routes)} routes: SR is the mean of the routes' success rates (as in the "
              "table's Average), the lowest route beside it; SR within 0.5 m, SPL, the final distance to the goal "
-             "and collisions are over all trials; wrong (re-)localisations come from the step logs (the rule in "
-             "the section below); the margin is the SR's over the SPTM-style baseline's.", "",
+             "and collisions are over all trials; wrong (re-)localisations come from the step logs (read as each "
+             "episode ran and kept in its record; the rule in the section below); the margin is the SR's over the "
+             "SPTM-style baseline's.", "",
              "| method | trials | SR | lowest route | SR 0.5 m | SPL | final distance p50 / p90 (m) | "
              "collisions per episode | wrong (re-)localisations | margin over the baseline |",
              "|---|---|---|---|---|---|---|---|---|---|"]
@@ -221,17 +222,25 @@ def _paper_table(routes, methods, summary) -> str:
 
 
 def diagnose_episodes(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
-    """``{id(episode): Diagnosis}`` for the episodes with a step log of all their steps in ``out``
-    and a map with true node poses (:mod:`robot.bench.diagnosis`); ``specs``: the world specs by
-    name (the true goal of each route)."""
+    """``{id(episode): Diagnosis}`` for the episodes whose record holds the diagnosis made when
+    they ran, or with a step log of all their steps in ``out`` and a map with true node poses
+    (:mod:`robot.bench.diagnosis`); ``specs``: the world specs by name (the true goal of each
+    route). The record comes first: a replay may have written the log since."""
     import sys
 
-    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log, route_goal
+    from robot.bench.diagnosis import Diagnosis, StepLogError, diagnose, map_node_poses, read_step_log, route_goal
     from robot.bench.trials import Trial, step_log_path
 
     poses_of: dict = {}
     found = {}
     for e in episodes:
+        if e.get("diagnosis") is not None:
+            try:
+                found[id(e)] = Diagnosis.from_dict(e["diagnosis"])
+                continue
+            except (KeyError, TypeError) as exc:
+                print(f"note: {_episode_label(e)}: the diagnosis in its record is unreadable ({exc}); "
+                      "reading its step log", file=sys.stderr)
         trial = Trial(**e["trial"])
         log = step_log_path(out, trial)
         if not log.is_file():

@@ -241,9 +241,25 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
     poses = result.true_poses
     keep = list(range(0, len(poses), TRAJECTORY_EVERY)) + ([len(poses) - 1] if len(poses) % TRAJECTORY_EVERY != 1 else [])
     trajectory = [[round(poses[i].x_m, 3), round(poses[i].y_m, 3)] for i in keep]
-    return {"trial": asdict(trial), "metrics": metrics, "goal_node": result.goal.node,
-            "goal_rivals": list(result.goal.rivals),
-            "trajectory": trajectory, "timing": timing}
+    record = {"trial": asdict(trial), "metrics": metrics, "goal_node": result.goal.node,
+              "goal_rivals": list(result.goal.rivals), "trajectory": trajectory, "timing": timing}
+    if step_log is not None:
+        diagnosis = _diagnosis(step_log, trial, spec, result.goal.node)
+        if diagnosis is not None:
+            record["diagnosis"] = diagnosis
+    return record
+
+
+def _diagnosis(step_log: str, trial: Trial, spec, goal_node) -> Optional[dict]:
+    """The episode's step log read against its map (:mod:`robot.bench.diagnosis`), for its record:
+    the run's report counts wrong (re-)localisations from it where the logs are not at hand
+    (they are not committed); None for a map without true node poses."""
+    from robot.bench.diagnosis import diagnose, map_node_poses, read_step_log, route_goal
+
+    poses = _cached(("poses", trial.map_dir), lambda: map_node_poses(Path(trial.map_dir)))
+    if poses is None:
+        return None
+    return diagnose(read_step_log(Path(step_log)), poses, route_goal(spec, trial.route, goal_node)).to_dict()
 
 
 def _failed_before_driving(trial: Trial, spec, exc: Exception) -> dict:
