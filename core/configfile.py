@@ -77,6 +77,28 @@ def from_mapping(cls: Type[T], data: Any, source: str = "<config>", field: str =
     return _convert(cls, data, source, field)
 
 
+def without_unknown(cls: Type[T], data: Mapping, field: str = "") -> tuple[dict, list[str]]:
+    """``data`` less the fields ``cls`` does not have, down through nested dataclasses, and those
+    fields' dotted names: for reading a record written by an older version of the code, where a
+    field removed since would otherwise stop :func:`from_mapping`."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name for f in dataclasses.fields(cls) if f.init}
+    kept, dropped = {}, []
+    for name, value in data.items():
+        path = _join(field, str(name))
+        if name not in fields:
+            dropped.append(path)
+            continue
+        tp, origin = hints[name], typing.get_origin(hints[name])
+        union = origin is typing.Union or (sys.version_info >= (3, 10) and origin is types.UnionType)
+        inner = [a for a in typing.get_args(tp) if a is not type(None)] if union else [tp]
+        if isinstance(value, Mapping) and len(inner) == 1 and dataclasses.is_dataclass(inner[0]):
+            value, below = without_unknown(inner[0], value, path)
+            dropped += below
+        kept[name] = value
+    return kept, dropped
+
+
 def to_mapping(obj: Any) -> Any:
     """The inverse of :func:`from_mapping`: plain dicts, lists and scalars, ready for YAML/JSON."""
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):

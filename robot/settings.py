@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from controllers.config import NavigationConfig
-from core.configfile import from_mapping, load_config, read_yaml_mapping
+from core.configfile import from_mapping, load_config, read_yaml_mapping, without_unknown
 from core.hal import VelocityLimits
 from core.validate import check_at_least, check_count, check_range
 from limo.config import LimoSerialConfig
@@ -73,6 +73,14 @@ def load_stack_config(path: str | Path | None = None) -> StackConfig:
         return load_config(StackConfig, DEFAULT_CONFIG)
     return from_mapping(StackConfig, _merged(read_yaml_mapping(DEFAULT_CONFIG), read_yaml_mapping(path)),
                         source=str(path))
+
+
+def load_run_record(path: str | Path) -> tuple[StackConfig, list[str]]:
+    """A run's record of the configuration its episodes ran with (``config.yaml`` in a run
+    folder), read as :func:`load_stack_config` reads a file, less the fields the code no longer
+    has (an addition removed since the run): those come back by dotted name, for a note."""
+    record, dropped = without_unknown(StackConfig, read_yaml_mapping(path))
+    return from_mapping(StackConfig, _merged(read_yaml_mapping(DEFAULT_CONFIG), record), source=str(path)), dropped
 
 
 def _merged(base: dict, over: dict) -> dict:

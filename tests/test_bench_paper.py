@@ -299,15 +299,19 @@ def test_a_run_folder_replays_elsewhere_and_rebuilds_a_missing_map(serial_run, t
     assert trial["map_dir"] == "maps/tiny-s0.5" and not Path(trial["trace_png"] or "x").is_absolute()
     moved = tmp_path / "moved"
     shutil.copytree(out / "episodes", moved / "episodes")
+    # the run's record naming a field the code has removed since: a note, and the replay goes on
+    (moved / "config.yaml").write_text((out / "config.yaml").read_text() + "retired_addition: {enabled: true}\n")
     replay, args = _replay_args(moved / "episodes" / episode.name, "--quiet", "--events", "0")
     assert replay.main(args) == 0
     captured = capsys.readouterr()
     assert "building it again" in captured.err and "reproduced" in captured.out and "NOT" not in captured.out
+    assert "names retired_addition, which the code no longer has" in captured.err
     assert (moved / "maps" / "tiny-s0.5" / "manifest.json").is_file()
     original = json.loads((out / "maps" / "tiny-s0.5" / "manifest.json").read_text())
     rebuilt = json.loads((moved / "maps" / "tiny-s0.5" / "manifest.json").read_text())
     assert rebuilt["files"] == original["files"]          # byte-identical contents (per-file digests)
     # a map that is missing and not one the harness builds is named, exit 2
+    shutil.copy(out / "config.yaml", moved / "config.yaml")
     odd = json.loads(episode.read_text())
     odd["trial"]["map_dir"] = "/nowhere/custom-map"
     (moved / "episodes" / "odd.json").write_text(json.dumps(odd))

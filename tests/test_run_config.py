@@ -44,3 +44,31 @@ def test_replay_reads_the_run_folders_config_unless_told_another(tmp_path):
     write_run_config(tmp_path / "run", load_stack_config())
     assert replay_config(episode, None) == (tmp_path / "run" / RUN_CONFIG).resolve()
     assert replay_config(episode, other) == other
+
+
+def test_a_record_naming_a_field_removed_since_reads_without_it(tmp_path):
+    """A run's record written before an addition was removed from the code still loads (a replay
+    of a committed run must not stop), less that field, which comes back by name for a note; a
+    user's --config file with an unknown field is still an error."""
+    import yaml
+
+    from core.configfile import ConfigError
+    from robot.settings import load_run_record
+
+    config = load_stack_config()
+    path = write_run_config(tmp_path / "run", config)
+    assert load_run_record(path) == (config, [])
+    record = yaml.safe_load(path.read_text())
+    record["navigation"]["gone_addition"] = {"enabled": True}
+    record["navigation"]["supervisor"]["old_knob"] = 3
+    record["retired_section"] = {"a": 1}
+    path.write_text(yaml.safe_dump(record))
+    again, dropped = load_run_record(path)
+    assert again == config
+    assert sorted(dropped) == ["navigation.gone_addition", "navigation.supervisor.old_knob", "retired_section"]
+    try:
+        load_stack_config(path)
+    except ConfigError as exc:
+        assert "unknown field" in str(exc)
+    else:
+        raise AssertionError("an unknown field in a --config file must be an error")

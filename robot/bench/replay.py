@@ -201,12 +201,18 @@ def main(args: argparse.Namespace) -> int:
         return 2
     from core.configfile import ConfigError
     from robot.bench.trials import config_digest
-    from robot.settings import load_stack_config
+    from robot.settings import load_run_record, load_stack_config
 
-    given = args.config
+    given, dropped = args.config, []
     args.config = replay_config(args.episode, args.config)
     try:
-        config = load_stack_config(args.config)
+        if given is None and args.config is not None:
+            config, dropped = load_run_record(args.config)
+            if dropped:
+                print(f"note: {args.config} names {', '.join(dropped)}, which the code no longer has (removed since "
+                      "the run): replayed without", file=sys.stderr)
+        else:
+            config = load_stack_config(args.config)
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -214,6 +220,7 @@ def main(args: argparse.Namespace) -> int:
         digest = config_digest(config)
         if digest != trial.config_digest:
             why = ("pass the run's --config to reproduce it" if given is not None or args.config is None else
+                   "the code has changed since the run (the note above)" if dropped else
                    f"{args.config} is the run's record, read over configs/default.yaml: a field the code added "
                    "since takes today's default unless the record names it")
             print(f"note: the configuration differs from the one the episode ran with (digest {digest}, recorded "
@@ -227,7 +234,7 @@ def main(args: argparse.Namespace) -> int:
     trial = replace(trial, trace_png=None if args.trace is None else str(args.trace))
     worker_init()          # as the harness ran it: one torch / BLAS / OpenCV thread
     try:
-        result = run_trial(trial, None if args.config is None else str(args.config), step_log=str(log),
+        result = run_trial(trial, config=config, step_log=str(log),
                            video_path=None if args.video is None else str(args.video), viewer=viewer,
                            progress=not args.quiet)
     except KeyboardInterrupt as exc:

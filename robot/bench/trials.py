@@ -190,10 +190,12 @@ def worker_init() -> None:
     set_threads(1)
 
 
-def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Optional[str] = None,
+def run_trial(trial: Trial, config_path: Optional[str] = None, *, config=None, step_log: Optional[str] = None,
               video_path: Optional[str] = None, viewer=None, progress: bool = False) -> dict:
     """Run one trial; returns ``{"trial": ..., "metrics": ..., "trajectory": ..., "timing": ...}``
-    (``timing`` is the only wall-clock part). ``step_log`` / ``video_path`` / ``viewer``: a per-step
+    (``timing`` is the only wall-clock part). The stack configuration: ``config`` (a loaded
+    :class:`robot.settings.StackConfig`), else the file at ``config_path`` read over
+    ``configs/default.yaml``. ``step_log`` / ``video_path`` / ``viewer``: a per-step
     JSON-lines log, an MP4 with overlays and a :class:`robot.viewer.stream.ViewerTarget` (``python
     -m robot.bench replay``); none changes the run."""
     from controllers.localisation import GoalNotLocalisedError
@@ -205,7 +207,8 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, step_log: Opti
     from robot.settings import load_stack_config
     from sim.worlds import load_world
 
-    config = _cached(("config", config_path), lambda: load_stack_config(config_path))
+    if config is None:
+        config = _cached(("config", config_path), lambda: load_stack_config(config_path))
     spec = _cached(("world", trial.world), lambda: load_world(trial.world))
     loaded = _cached(("map", trial.map_dir), lambda: load_map(trial.map_dir))
     descriptor = _cached(("descriptor", trial.map_dir),
