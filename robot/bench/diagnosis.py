@@ -21,8 +21,9 @@ pose. Together they tell, without looking at pictures, whether each node the nav
   moving action);
 * a **collision** is a step at which the simulator's count of new contacts with walls and props
   (the log's ``collisions``, since the episode began) went up; each is told by what the robot
-  was commanded then: turning in place (a search), driving, backing off, retracing (driving the
-  way just come backwards before a turn in place) or standing;
+  was commanded then: turning in place (a search), driving, backing off or standing (and, in
+  logs written before that addition was removed, retracing: the way just come backwards before
+  a turn in place);
 * where the log has the belief over the map (``belief_top``), the belief's mode is judged by the
   same rule at every step and at every confirmation: how often the belief would have placed the
   robot right where the navigator's single look did or did not.
