@@ -89,9 +89,8 @@ def without_unknown(cls: Type[T], data: Mapping, field: str = "") -> tuple[dict,
         if name not in fields:
             dropped.append(path)
             continue
-        tp, origin = hints[name], typing.get_origin(hints[name])
-        union = origin is typing.Union or (sys.version_info >= (3, 10) and origin is types.UnionType)
-        inner = [a for a in typing.get_args(tp) if a is not type(None)] if union else [tp]
+        tp = hints[name]
+        inner = [a for a in typing.get_args(tp) if a is not type(None)] if _is_union(tp) else [tp]
         if isinstance(value, Mapping) and len(inner) == 1 and dataclasses.is_dataclass(inner[0]):
             value, below = without_unknown(inner[0], value, path)
             dropped += below
@@ -110,6 +109,12 @@ def to_mapping(obj: Any) -> Any:
     return obj
 
 
+def _is_union(tp: Any) -> bool:
+    """``Optional[X]``, ``Union[X, Y]`` or ``X | Y``."""
+    origin = typing.get_origin(tp)
+    return origin is typing.Union or (sys.version_info >= (3, 10) and origin is types.UnionType)
+
+
 def _describe(value: Any) -> str:
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
@@ -125,7 +130,7 @@ def _convert(tp: Any, value: Any, source: str, field: str) -> Any:
 
     if tp is Any:
         return value
-    if origin is typing.Union or (sys.version_info >= (3, 10) and origin is types.UnionType):
+    if _is_union(tp):
         if value is None and type(None) in args:
             return None
         errors = []

@@ -162,25 +162,14 @@ def events(log_path: Path) -> list[str]:
     return out
 
 
-def _diagnosis(log: Path, trial, goal_node) -> Optional[str]:
-    """The step log read against the map's true node poses (:mod:`robot.bench.diagnosis`), or
-    None (no log, or a map without true poses)."""
-    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log, route_goal
-    from sim.world_spec import WorldError
-    from sim.worlds import load_world
+def _diagnosis(record: dict) -> Optional[str]:
+    """The diagnosis :func:`robot.bench.trials.run_trial` made of the episode's step log
+    (:mod:`robot.bench.diagnosis`), in words; None when it made none (a map without true poses)."""
+    from robot.bench.diagnosis import Diagnosis
 
-    poses = map_node_poses(Path(trial.map_dir))
-    if poses is None or not log.is_file():
+    if record.get("diagnosis") is None:
         return None
-    try:
-        spec = load_world(trial.world)
-    except (WorldError, OSError):
-        spec = None
-    goal = route_goal(spec, trial.route, goal_node)
-    try:
-        d = diagnose(read_step_log(log), poses, goal)
-    except (StepLogError, KeyError) as exc:
-        return f"step log not diagnosed: {exc}"
+    d = Diagnosis.from_dict(record["diagnosis"])
     text = f"step log: {len(d.confirmations)} nodes confirmed, {len(d.wrong)} at a wrong place; {d.summary()}"
     belief = d.belief_summary()
     return text if belief is None else f"{text}\n{belief}"
@@ -249,7 +238,7 @@ def main(args: argparse.Namespace) -> int:
     print(f"\n{trial.key}: {'success' if m['success'] else 'failure'}, {m['steps']} steps, end {m['end']}, "
           f"final distance {m['final_distance_m']} m, {m['relocalisations']} re-localisations, "
           f"{m['collisions']} collisions: {m['reason']}")
-    diagnosis = _diagnosis(log, trial, result.get("goal_node"))
+    diagnosis = _diagnosis(result)
     if diagnosis:
         print(diagnosis)
     from robot.episode.step_log import views_path

@@ -256,13 +256,17 @@ def run_trial(trial: Trial, config_path: Optional[str] = None, *, config=None, s
 def _diagnosis(step_log: str, trial: Trial, spec, goal_node) -> Optional[dict]:
     """The episode's step log read against its map (:mod:`robot.bench.diagnosis`), for its record:
     the run's report counts wrong (re-)localisations from it where the logs are not at hand
-    (they are not committed); None for a map without true node poses."""
-    from robot.bench.diagnosis import diagnose, map_node_poses, read_step_log, route_goal
+    (they are not committed); None for a map without true node poses, or a log it cannot read
+    against the map (the episode's result does not depend on it)."""
+    from robot.bench.diagnosis import StepLogError, diagnose, map_node_poses, read_step_log, route_goal
 
     poses = _cached(("poses", trial.map_dir), lambda: map_node_poses(Path(trial.map_dir)))
     if poses is None:
         return None
-    return diagnose(read_step_log(Path(step_log)), poses, route_goal(spec, trial.route, goal_node)).to_dict()
+    try:
+        return diagnose(read_step_log(Path(step_log)), poses, route_goal(spec, trial.route, goal_node)).to_dict()
+    except (StepLogError, KeyError):
+        return None
 
 
 def _failed_before_driving(trial: Trial, spec, exc: Exception) -> dict:
