@@ -57,8 +57,8 @@ def test_confirmations_wrong_places_and_lost_events():
     assert counts == {"episodes": 2, "confirmations": 7, "wrong": 2, "localisations": 3, "wrong_localisations": 1,
                       "belief_localisations": 0, "belief_wrong_localisations": 0, "belief_steps": 0,
                       "belief_right": 0, "belief_confident": 0, "belief_confident_right": 0,
-                      "pinned_episodes": 0, "pinned_steps": 0, "collisions": {},
-                      "median_distance_m": 0.2}
+                      "pinned_episodes": 0, "pinned_steps": 0, "odometry_episodes": 0, "odometry_steps": 0,
+                      "odometry_nodes": 0, "collisions": {}, "median_distance_m": 0.2}
     assert d.belief_summary() is None                       # a log without the belief
 
 
@@ -165,6 +165,20 @@ def test_collisions_are_told_by_what_the_robot_was_commanded_then():
     assert confirmation_counts([d, d])["collisions"] == {"driving": 2, "turning in place": 6}
     # a log without the count (written before it was logged, or not by the simulator) has none
     assert collision_onsets(STEPS) == () and "collisions" not in diagnose(STEPS, POSES).summary()
+
+
+def test_driving_on_by_odometry_is_counted_from_the_log():
+    """The steps the supervisor drove on by odometry and the nodes it took as reached so; a log
+    written before the field counts none."""
+    marks = {3: "driving on", 4: "reached", 5: None, 8: "driving on"}
+    steps = [{**s, "odometry": marks.get(s["step"])} for s in STEPS]
+    d = diagnose(steps, POSES)
+    assert (d.odometry_steps, d.odometry_nodes) == (3, 1)
+    assert "drove on by odometry for 3 steps, 1 node(s) reached so" in d.summary()
+    counts = confirmation_counts([d, d, diagnose(STEPS, POSES)])
+    assert (counts["odometry_episodes"], counts["odometry_steps"], counts["odometry_nodes"]) == (2, 6, 2)
+    assert diagnose(STEPS, POSES).odometry_steps == 0 and "odometry" not in diagnose(STEPS, POSES).summary()
+    assert Diagnosis.from_dict(json.loads(json.dumps(d.to_dict()))) == d
 
 
 def test_a_diagnosis_survives_an_episode_record():

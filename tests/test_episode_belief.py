@@ -88,6 +88,7 @@ def test_the_loop_tracks_the_belief_and_logs_it(metric):
     entry = step_log_entry(records[-1][0], records[-1][1], topomap.node_ids)
     assert entry["belief_top"][0][0] == records[-1][0].belief.mode and 0 < entry["belief_confidence"] <= 1
     assert entry["belief_entropy_bits"] >= 0
+    assert entry["odometry"] is None                 # it arrived by its views, not driving on blind
 
 
 @pytest.mark.parametrize("metric", [True, False])

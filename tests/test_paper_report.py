@@ -1,6 +1,6 @@
 """The paper report's summaries, from hand-made episodes (no simulator)."""
 
-from robot.bench.paper_report import _overall_lines, overall, summarise_episodes
+from robot.bench.paper_report import _overall_lines, odometry_lines, overall, summarise_episodes
 
 
 def _episode(world, route, method, trial, *, success, near, spl, distance, collisions=0):
@@ -55,3 +55,18 @@ def test_a_route_without_trials_leaves_the_averages_open():
     assert over["ours"]["lowest_route"] is None and over["ours"]["margin_over_sptm"] is None
     row = next(line for line in _overall_lines(over, routes) if line.startswith("| ours |"))
     assert "| ours | 4 | - | - |" in row and row.endswith("| - |")
+
+
+def test_the_odometry_table_names_only_where_driving_on_acted():
+    from robot.bench.diagnosis import confirmation_counts, diagnose
+
+    poses = {0: (0.0, 0.0, 0.0), 1: (1.0, 0.0, 0.0)}
+    steps = [{"step": i, "x_m": 0.5 * i, "y_m": 0.0, "yaw_deg": 0.0, "state": "navigating", "current_node": i // 2,
+              "target_node": 1, "odometry": mark} for i, mark in enumerate([None, "driving on", "reached", None])]
+    blind = diagnose(steps, poses)
+    seen = diagnose([{**s, "odometry": None} for s in steps], poses)
+    counted = {("hospital easy", "ours"): confirmation_counts([blind, seen]),
+               ("office", "ours"): confirmation_counts([seen])}
+    lines = odometry_lines(counted)
+    assert lines[-1] == "| hospital easy | ours | 2 | 1 | 2 | 1 |" and not any("office" in line for line in lines)
+    assert odometry_lines({("office", "ours"): confirmation_counts([seen])}) == []

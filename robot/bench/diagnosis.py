@@ -24,6 +24,9 @@ pose. Together they tell, without looking at pictures, whether each node the nav
   was commanded then: turning in place (a search), driving, backing off or standing (and, in
   logs written before that addition was removed, retracing: the way just come backwards before
   a turn in place);
+* **driving on by odometry** (``supervisor.odometry_max_m``): the steps at which the views
+  matched nothing and the supervisor drove on by the map's arc lengths, and the nodes it took
+  as reached so (the log's ``odometry``; logs written before that field count none);
 * where the log has the belief over the map (``belief_top``), the belief's mode is judged by the
   same rule at every step and at every confirmation: how often the belief would have placed the
   robot right where the navigator's single look did or did not.
@@ -150,6 +153,8 @@ class Diagnosis:
     belief_confident_right: int = 0
     pinned: tuple[PinnedStretch, ...] = ()
     collisions: tuple[CollisionOnset, ...] = ()
+    odometry_steps: int = 0                     # steps driven on by odometry (views matching nothing)
+    odometry_nodes: int = 0                     # ... of them, nodes taken as reached by odometry
 
     def to_dict(self) -> dict:
         """Plain lists and scalars for an episode's JSON record (:meth:`from_dict` reads it back)."""
@@ -213,6 +218,9 @@ class Diagnosis:
             p = max(self.pinned, key=lambda q: q.steps)
             parts.append(f"pinned for {self.pinned_steps} steps in {len(self.pinned)} stretch(es), the longest "
                          f"{p.steps} from step {p.step} at ({p.x_m:.1f}, {p.y_m:.1f})")
+        if self.odometry_steps:
+            parts.append(f"drove on by odometry for {self.odometry_steps} steps, {self.odometry_nodes} node(s) "
+                         "reached so")
         if self.collisions:
             by = sorted(self.collisions_by_doing().items(), key=lambda kv: -kv[1])
             parts.append(f"{sum(n for _, n in by)} collisions: " + ", ".join(f"{n} {doing}" for doing, n in by))
@@ -323,7 +331,7 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
     confirmations: list[Confirmation] = []
     lost: list[LostEvent] = []
     previous: Optional[Mapping] = None
-    counts = {"steps": 0, "right": 0, "confident": 0, "confident_right": 0}
+    counts = {"steps": 0, "right": 0, "confident": 0, "confident_right": 0, "odometry": 0, "odometry_nodes": 0}
     steps = list(steps)
     for s in steps:
         state, node = s["state"], s["current_node"]
@@ -333,6 +341,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
                 kind = "localised"
             elif node != previous["current_node"]:
                 kind = "reached"
+        counts["odometry"] += s.get("odometry") in ("driving on", "reached")
+        counts["odometry_nodes"] += s.get("odometry") == "reached"
         belief = s.get("belief_top")
         mode = belief[0][0] if belief else None
         mode_wrong = None
@@ -356,7 +366,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
         previous = s
     beliefs = {"belief_steps": counts["steps"], "belief_right": counts["right"],
                "belief_confident": counts["confident"], "belief_confident_right": counts["confident_right"],
-               "pinned": pinned_stretches(steps), "collisions": collision_onsets(steps)}
+               "pinned": pinned_stretches(steps), "collisions": collision_onsets(steps),
+               "odometry_steps": counts["odometry"], "odometry_nodes": counts["odometry_nodes"]}
     if goal is None:
         return Diagnosis(tuple(confirmations), tuple(lost), **beliefs)
     node, (gx, gy) = goal
@@ -368,7 +379,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
 
 def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
     """Totals over episodes: confirmations and wrong ones, the same for (re-)localisations, the
-    episodes and steps pinned, and the collisions by what the robot was doing."""
+    episodes and steps pinned, the episodes, steps and nodes driven on by odometry, and the
+    collisions by what the robot was doing."""
     every = [c for d in diagnoses for c in d.confirmations]
     localised = [c for c in every if c.kind == "localised"]
     judged = [c for c in localised if c.belief_wrong is not None]
@@ -380,6 +392,9 @@ def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
             "belief_confident_right": sum(d.belief_confident_right for d in diagnoses),
             "pinned_episodes": sum(bool(d.pinned) for d in diagnoses),
             "pinned_steps": sum(d.pinned_steps for d in diagnoses),
+            "odometry_episodes": sum(bool(d.odometry_steps) for d in diagnoses),
+            "odometry_steps": sum(d.odometry_steps for d in diagnoses),
+            "odometry_nodes": sum(d.odometry_nodes for d in diagnoses),
             "collisions": _sum_counts(d.collisions_by_doing() for d in diagnoses),
             "median_distance_m": None if not every else round(statistics.median(c.distance_m for c in every), 3)}
 

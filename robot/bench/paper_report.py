@@ -360,6 +360,7 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
                                  f"{c['belief_confident']} | {c['belief_confident_right']} | "
                                  f"{c['belief_localisations']} | {c['wrong_localisations']} | "
                                  f"{c['belief_wrong_localisations']} |")
+        lines += odometry_lines(counted)
         if any(c["collisions"] for c in counted.values()):
             doings = ("turning in place", "driving", "backing off", "standing")
             doings += tuple(sorted({d for c in counted.values() for d in c["collisions"]} - set(doings)))
@@ -382,6 +383,23 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
     lines += ["", "Pictures: `sr.png`, `trajectories_<world>_<route>.png`"
               + (", `sparsity.png`" if sparsity else "") + "; one trace per episode in `traces/`.", ""]
     return "\n".join(lines)
+
+
+def odometry_lines(counted: dict) -> list[str]:
+    """The report's table of driving on by odometry (``supervisor.odometry_max_m``) from
+    ``{(route, method): confirmation_counts(...)}``; no lines where it never acted."""
+    if not any(c["odometry_steps"] for c in counted.values()):
+        return []
+    lines = ["", "Driving on by odometry (`supervisor.odometry_max_m`): the episodes and steps where the views "
+             "matched nothing and the supervisor drove on by the map's arc lengths, and the nodes it took as "
+             "reached so (routes and methods where it never acted are left out).", "",
+             "| route | method | episodes | driving on: episodes | steps | nodes reached by odometry |",
+             "|---|---|---|---|---|---|"]
+    for (label, method), c in counted.items():
+        if c["odometry_steps"]:
+            lines.append(f"| {label} | {method} | {c['episodes']} | {c['odometry_episodes']} | "
+                         f"{c['odometry_steps']} | {c['odometry_nodes']} |")
+    return lines
 
 
 def _plots(out: Path, routes, methods, summary, main, specs, sparsity, diagnoses: Optional[dict] = None) -> list[Path]:

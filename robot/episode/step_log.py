@@ -1,6 +1,8 @@
 """The per-step log of an episode (JSON lines): the true pose after each step, what the navigator
-decided and why, the node the raw view matched best, and the belief over the map (its top nodes
-with their mass, the confidence, the entropy and the direction at the mode relative to the route); ``python -m robot.bench replay`` and
+decided and why (``odometry``: "driving on" while the views match nothing and the supervisor
+drives on by odometry, "reached" at a node it confirmed so), the node the raw view matched
+best, and the belief over the map (its top nodes with their mass, the confidence, the entropy
+and the direction at the mode relative to the route); ``python -m robot.bench replay`` and
 the harness's diagnosis read it.
 
 Beside it, :func:`views_path` (``X.views.npz`` for ``X.steps.jsonl``) holds what the robot
@@ -43,6 +45,8 @@ def step_log_entry(record: StepRecord, pose: Pose2D, node_ids: np.ndarray, colli
             [r3(s.vote.scores.left), r3(s.vote.scores.middle), r3(s.vote.scores.right)],
             "best_raw_node": int(node_ids[best]), "best_raw_score": r3(sims[best]),
             "relocalisations": s.relocalisations, "reason": s.reason,
+            "odometry": None if s.supervisor is None else
+            "reached" if s.supervisor.by_odometry else "driving on" if s.supervisor.driving_on else None,
             "goal_image_score": r3(record.goal_score),
             "goal_image_filtered": None if s.supervisor is None else r3(s.supervisor.goal_image_score),
             "belief_top": None if record.belief is None else [[int(n), round(m, 3)] for n, m in record.belief.top],
