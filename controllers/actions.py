@@ -17,8 +17,9 @@ class Action(enum.Enum):
     ``NONE`` means no action is taken this tick (a storing cycle without a held action, a
     conflict, no vote, a localisation being confirmed): the robot stands still.
     ``SEARCH_ROTATE`` turns counter-clockwise in place to look for a match. ``BACKWARD`` backs off
-    a wall the robot is pinned against (``navigation.recovery``). ``STOP`` is final: arrived or
-    failed.
+    a wall the robot is pinned against (``navigation.recovery``). ``RETRACE`` drives the way just
+    driven backwards before a turn in place (``navigation.turn_room``): its velocity is a recent
+    command negated, so it has no speed of its own. ``STOP`` is final: arrived or failed.
     """
 
     LEFT = "left"
@@ -29,6 +30,7 @@ class Action(enum.Enum):
     NONE = "none"
     SEARCH_ROTATE = "search_rotate"
     BACKWARD = "backward"
+    RETRACE = "retrace"
     STOP = "stop"
 
     @property
@@ -43,4 +45,6 @@ def action_velocity(action: Action, speeds: ActionSpeeds) -> VelocityCommand:
         raise TypeError(f"expected an Action, got {action!r}")
     if not action.moves:
         return ZERO_VELOCITY
+    if action is Action.RETRACE:
+        raise ValueError("RETRACE has no speed of its own: it negates a command the robot just drove")
     return getattr(speeds, action.value)

@@ -169,8 +169,8 @@ class BearingChooser:
                                                        f"of the view's width: {action.value}")
 
 
-#: actions a learned policy may not return: the navigator's own (search, backing off) and STOP
-_NOT_DRIVING = (Action.STOP, Action.SEARCH_ROTATE, Action.BACKWARD)
+#: actions a learned policy may not return: the navigator's own (search, backing off, retracing) and STOP
+_NOT_DRIVING = (Action.STOP, Action.SEARCH_ROTATE, Action.BACKWARD, Action.RETRACE)
 
 
 class PolicyChooser:

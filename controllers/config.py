@@ -420,6 +420,23 @@ class RecoveryConfig:
 
 
 @dataclass(frozen=True)
+class TurnRoomConfig:
+    """Not in the paper. Room to turn in place: before the turn of a search or a re-localisation
+    the robot drives the way it just came backwards, for at most ``retrace_ticks`` (its last
+    commands negated, newest first, back to its last turn in place), so that it turns where it
+    was a moment before. Why: a robot that lost its target has usually driven up to a wall, and
+    the Limo's corners sweep 0.19 m around its centre as it turns; the way just driven was free,
+    and a camera that looks forward cannot see any other free space."""
+
+    enabled: bool = True
+    retrace_ticks: int = 20
+
+    def __post_init__(self) -> None:
+        check_bool("enabled", self.enabled)
+        check_count("retrace_ticks", self.retrace_ticks, 1)
+
+
+@dataclass(frozen=True)
 class HeadingGuardConfig:
     """Not in the paper. Keeping the robot facing along the route (:mod:`controllers.heading_guard`):
     while it navigates, when its odometry heading is more than ``max_error_deg`` away from the way
@@ -550,6 +567,7 @@ class NavigationConfig:
     #: backing off when pinned against a wall (off by default)
     recovery: RecoveryConfig = field(default_factory=RecoveryConfig)
     #: backing off along the way just driven before turning in place
+    turn_room: TurnRoomConfig = field(default_factory=TurnRoomConfig)
     #: turning back when the robot faces away from the route (the voter only)
     heading_guard: HeadingGuardConfig = field(default_factory=HeadingGuardConfig)
     #: steering by the bearing of the target's view instead of the thirds
@@ -627,7 +645,7 @@ class NavigationConfig:
                                goal_image_arrival=False, goal_by_belief=False, goal_waits_for_belief=False,
                                goal_odometry_short_m=None,
                                odometry_max_m=0.0),
-            recovery=replace(self.recovery, enabled=False),
+            recovery=replace(self.recovery, enabled=False), turn_room=replace(self.turn_room, enabled=False),
             heading_guard=replace(self.heading_guard, enabled=False), bearing=replace(self.bearing, enabled=False),
             hold_action_between_votes=False, blind_forward_ticks=0, heading_hints=False)
 

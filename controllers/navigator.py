@@ -49,6 +49,10 @@ States (:class:`NavState`):
   ``recovery.backup_ticks``, then navigates on.
 * SEARCHING: the voter has not seen the target for its patience; turns counter-clockwise in
   place until a third sees it (back to NAVIGATING), or re-localises after a full turn.
+  With ``turn_room`` (on by default) this turn, and that of RELOCALISING, starts after driving
+  the way just come backwards (RETRACE: the last ``turn_room.retrace_ticks`` commands negated,
+  newest first, back to the last turn in place): a robot that lost its way has usually driven
+  up to a wall, and turning there sweeps its corners across it.
 * RELOCALISING: the supervisor reported the robot lost; localisation as in LOCALISING, but
   only nodes from which the goal is reachable count, and the stretch of the old plan around
   the last node is accepted as the best of the map above ``t_lost`` (other nodes need
@@ -105,8 +109,8 @@ Transitions (:data:`TRANSITIONS`; the navigator refuses any other):
 
 Entry actions (one place: ``Navigator._enter``): LOCALISING and RELOCALISING start a new
 localiser and a new turn of the search (RELOCALISING also counts the re-localisation, resets
-the chooser, drops the plan's supervisor and the corner turn); NAVIGATING ends the turn of a
-search; SEARCHING starts one;
+the chooser, drops the plan's supervisor and the corner turn, and takes the way back to retrace);
+NAVIGATING ends the turn of a search; SEARCHING starts one and takes the way back to retrace;
 RECOVERING counts the recovery and starts the backing's count; TURNING none (every other state
 ends a turn back of the heading guard); ARRIVED and FAILED keep their step as the final one
 (velocity zero). The chooser is reset whenever its target changes or it missed ticks: a new
@@ -203,6 +207,10 @@ class NavigationStep:
 #: confirmations resolve a heading)
 STILL_M = 0.02
 STILL_RAD = math.radians(5.0)
+#: how many ticks of the way just driven the navigator remembers (``turn_room``)
+_BEHIND_TICKS = 200
+#: the commands before which the way just driven does not lead back (``turn_room``)
+_ENDS_THE_WAY_BACK = frozenset({Action.SEARCH_ROTATE, Action.RETRACE, Action.BACKWARD})
 #: the states in which the robot drives its plan (where a stall is backed off)
 DRIVING_STATES = frozenset({NavState.NAVIGATING, NavState.TURNING, NavState.SEARCHING})
 
@@ -315,6 +323,10 @@ class Navigator:
         self._arcs = None if arc_lengths_m is None else dict(arc_lengths_m)
         self._backing = 0                         # ticks backed off in this recovery
         self._recoveries = 0
+        # the way just driven, newest last: (action, velocity commanded); and the commands left
+        # to drive backwards before a turn in place, next first
+        self._behind: collections.deque = collections.deque(maxlen=_BEHIND_TICKS)
+        self._retrace: list = []
 
     @classmethod
     def to_goal_image(cls, graph: nx.DiGraph, node_ids: Sequence[NodeId],
@@ -413,6 +425,7 @@ class Navigator:
         elif state is NavState.SEARCHING:
             self._search, self._search_ticks = TurnMeter(), 0
             self._search.update(heading_rad)
+            self._retrace = self._way_back()
         elif state is NavState.RECOVERING:
             self._recoveries += 1
             self._backing = 0
@@ -424,6 +437,7 @@ class Navigator:
             self._local = self._local_columns()
             self._localiser = self._new_localiser(expected, first_view=False)
             self._search, self._search_ticks = TurnMeter(), 0
+            self._retrace = self._way_back()
 
     # -- localisation ---------------------------------------------------------------------
 
@@ -442,6 +456,8 @@ class Navigator:
 
     def _localise_tick(self, row: np.ndarray, heading_rad: Optional[float]) -> NavigationStep:
         self.filter.update(row)  # keep the filter warm for the supervisor that follows
+        if self._retrace:
+            return self._clear(f"re-localisation {self._relocalisations}")
         if self._by_belief():
             return self._localise_by_belief(row, heading_rad)
         if self._state is NavState.RELOCALISING:
@@ -667,6 +683,8 @@ class Navigator:
                 self._enter(NavState.NAVIGATING)
                 return self._step(choice.action, decision, choice.thirds, choice.vote,
                                   f"target {target!r} back in view; {choice.reason}")
+            if self._retrace:
+                return self._clear(f"searching for target {target!r}", decision)
             turned = self._search.update(heading_rad)
             self._search_ticks += 1
             loc = self.config.localiser
@@ -678,6 +696,8 @@ class Navigator:
 
         if choice.lost_sight:
             self._enter(NavState.SEARCHING, heading_rad)
+            if self._retrace:
+                return self._clear(f"target {target!r} out of sight for {choice.unseen_ticks} ticks", decision)
             return self._step(Action.SEARCH_ROTATE, decision, choice.thirds, choice.vote,
                               f"target {target!r} out of sight for {choice.unseen_ticks} ticks; "
                               "turning counter-clockwise to find it")
@@ -694,6 +714,29 @@ class Navigator:
         self.chooser.reset()
         self._enter(NavState.NAVIGATING)
         return None
+
+    def _way_back(self) -> list:
+        """The commands that drive the way just driven backwards (``turn_room``), next first: the
+        last ``turn_room.retrace_ticks`` moving commands negated, newest first, back to the last
+        turn in place or drive backwards (before it the way behind is not where the robot came
+        from)."""
+        room = self.config.turn_room
+        back: list = []
+        if not room.enabled:
+            return back
+        for action, velocity in reversed(self._behind):
+            if len(back) >= room.retrace_ticks or action in _ENDS_THE_WAY_BACK or velocity.v_mps < 0:
+                break
+            if not velocity.is_zero:
+                back.append(VelocityCommand(-velocity.v_mps, -velocity.w_radps))
+        return back
+
+    def _clear(self, why: str, decision: Optional[SupervisorDecision] = None) -> NavigationStep:
+        """One tick of the way back before a turn in place (``turn_room``)."""
+        velocity = self._retrace.pop(0)
+        return self._step(Action.RETRACE, decision, velocity=velocity,
+                          reason=f"{why}: driving the way just driven backwards to turn in place "
+                                 f"({len(self._retrace)} ticks to go)")
 
     def _confirmed(self, node: NodeId, heading_rad: Optional[float], seen: bool = True) -> None:
         """The supervisor confirmed ``node`` by driving: the new anchor, a corner turn to check,
@@ -793,9 +836,12 @@ class Navigator:
 
     def _step(self, action: Action, decision: Optional[SupervisorDecision] = None,
               thirds: Optional[ThirdScores] = None, vote: Optional[VoteResult] = None,
-              reason: str = "", turned_rad: float = 0.0) -> NavigationStep:
+              reason: str = "", turned_rad: float = 0.0,
+              velocity: Optional[VelocityCommand] = None) -> NavigationStep:
         current = decision.current_node if decision else (self._visited[-1] if self._visited else None)
-        velocity = action_velocity(action, self.config.speeds)
+        if velocity is None:
+            velocity = action_velocity(action, self.config.speeds)
+        self._behind.append((action, velocity))     # the way just driven (turn_room)
         return NavigationStep(
             tick=self._ticks, state=self._state, action=action,
             velocity=velocity, goal_node=self.goal_node,

@@ -108,6 +108,8 @@ def test_every_action_maps_to_its_velocity():
     assert fl.v_mps > 0 and fl.w_radps > 0 and fr.v_mps > 0 and fr.w_radps < 0
     assert action_velocity(Action.SEARCH_ROTATE, speeds) == speeds.search_rotate
     for action in Action:
+        if action is Action.RETRACE:          # a recent command negated: no speed of its own
+            continue
         cmd = action_velocity(action, speeds)
         assert isinstance(cmd, VelocityCommand)
         assert cmd.is_zero == (not action.moves)

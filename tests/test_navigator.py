@@ -252,6 +252,55 @@ def test_target_never_seen_escalates_from_search_to_relocalisation_to_failure():
     assert first_search - states.index(NavState.NAVIGATING) == config.no_vote_patience_ticks
 
 
+def _drive_then_lose_sight(config: NavigationConfig, schedule: Sequence[tuple], with_heading: bool = True) -> list:
+    """Chain 0 -> 1 -> 2, localised at node 0 (whose view stays): each ``(ticks, thirds)`` of
+    ``schedule`` in turn, then thirds that never vote until the search turn has begun; the
+    heading integrates the commands (or is None: a base without odometry heading)."""
+    graph, _ = chain(3)
+    nav = Navigator(graph, (0, 1, 2), 2, config)
+    at_node_0 = np.array([0.85, 0.35, 0.2])
+    heading = 0.0
+    steps = [nav.tick(at_node_0, heading_rad=heading)]
+    while nav.state is NavState.LOCALISING:
+        steps.append(nav.tick(at_node_0, heading_rad=heading))
+    for ticks, thirds in list(schedule) + [(200, (0.2, 0.25, 0.2))]:
+        for _ in range(ticks):
+            steps.append(nav.tick(at_node_0, thirds=lambda node: thirds, heading_rad=heading if with_heading else None))
+            heading += steps[-1].velocity.w_radps * DT_S
+            if steps[-1].action is Action.SEARCH_ROTATE:
+                return steps
+    raise AssertionError("never searched")
+
+
+def test_before_a_turn_in_place_the_robot_drives_the_way_it_came_backwards():
+    config = NavigationConfig(blind_forward_ticks=0)
+    room = config.turn_room
+    ahead, left = (0.2, 0.9, 0.2), (0.9, 0.2, 0.2)
+    steps = _drive_then_lose_sight(config, [(30, ahead), (6, left), (4, ahead)])
+    searching = [s for s in steps if s.state is NavState.SEARCHING]
+    assert [s.action for s in searching] == [Action.RETRACE] * room.retrace_ticks + [Action.SEARCH_ROTATE]
+    assert "driving the way just driven backwards to turn in place (19 ticks to go)" in searching[0].reason
+    # the last 20 moving commands (the patience's ticks stood still), negated, newest first:
+    # forward, the creeping left turn, forward again, undone in reverse
+    driven = [s.velocity for s in steps if s.state is NavState.NAVIGATING and not s.velocity.is_zero]
+    assert [s.velocity for s in searching[:-1]] == [VelocityCommand(-v.v_mps, -v.w_radps)
+                                                    for v in reversed(driven[-room.retrace_ticks:])]
+    assert {round(s.velocity.w_radps, 3) for s in searching[:-1]} == {0.0, -0.5}
+    # a long drive: retrace_ticks of it
+    steps = _drive_then_lose_sight(config, [(30, ahead)])
+    assert sum(s.action is Action.RETRACE for s in steps) == room.retrace_ticks
+    # nothing driven (a robot that never moved), or turn_room off (the paper's method): no retrace
+    assert Action.RETRACE not in {s.action for s in _drive_then_lose_sight(config, [])}
+    from dataclasses import replace
+    off = replace(config, turn_room=replace(room, enabled=False))
+    assert Action.RETRACE not in {s.action for s in _drive_then_lose_sight(off, [(30, ahead)])}
+    assert config.as_published().turn_room.enabled is False
+    with pytest.raises(ValueError, match="retrace_ticks"):
+        type(room)(retrace_ticks=0)
+    with pytest.raises(ValueError, match="RETRACE has no speed of its own"):
+        action_velocity(Action.RETRACE, config.speeds)
+
+
 def test_start_at_the_goal_arrives_without_moving():
     graph, poses = chain(3)
     places = SyntheticPlaces(poses, seed=12)
@@ -308,9 +357,9 @@ def test_weak_vote_follows_the_best_third_before_the_search_turn():
     steps = [nav.tick(at_node_0, thirds=lambda node: (0.2, 0.1, 0.1), heading_rad=0.0)
              for _ in range(4 + config.no_vote_patience_ticks)]
     assert [s.action for s in steps[:4]] == [Action.LEFT] * 4
-    # then the search
+    # then the search (first driving the creeping left turns backwards: turn_room)
     assert steps[-1].state is NavState.SEARCHING and NavState.SEARCHING not in {s.state for s in steps[:-1]}
-    assert steps[-1].action is Action.SEARCH_ROTATE
+    assert steps[-1].action is Action.RETRACE
 
 
 def test_relocalisation_ignores_nodes_from_which_the_goal_cannot_be_reached():
@@ -570,9 +619,13 @@ def test_relocalisation_searches_the_whole_map_when_nothing_near_matches():
     relocalising = [s for s in steps if s.state is NavState.RELOCALISING]
     widened = [s for s in relocalising if "searching the whole map" in s.reason]
     assert len(widened) == 1 and "no node within 4 arcs of node 0 matched" in widened[0].reason
-    # a full turn near node 0 (counter-clockwise in place), then the whole map: node 8
-    assert all(s.velocity.v_mps == 0 for s in relocalising)
-    assert sum(s.velocity.w_radps for s in relocalising) * DT_S >= 2 * math.pi
+    # room to turn first (the way just driven, backwards), then a full turn near node 0
+    # (counter-clockwise in place), then the whole map: node 8
+    backing = [s for s in relocalising if s.action is Action.RETRACE]
+    assert backing and relocalising[1:1 + len(backing)] == backing
+    turning = [s for s in relocalising if s.action is not Action.RETRACE]
+    assert all(s.velocity.v_mps == 0 for s in turning)
+    assert sum(s.velocity.w_radps for s in turning) * DT_S >= 2 * math.pi
     assert steps[-1].state is NavState.NAVIGATING and steps[-1].planned_path[0] == 8
     assert steps[-1].relocalisations == 1
 

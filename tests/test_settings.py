@@ -42,5 +42,5 @@ def test_each_ablation_turns_off_something_of_the_default_navigation_only(path):
 
 
 def test_the_ablations_are_all_different():
-    assert len(ABLATIONS) >= 8
+    assert len(ABLATIONS) >= 9
     assert len({load_stack_config(p).navigation for p in ABLATIONS}) == len(ABLATIONS)

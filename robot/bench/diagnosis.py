@@ -21,9 +21,8 @@ pose. Together they tell, without looking at pictures, whether each node the nav
   moving action);
 * a **collision** is a step at which the simulator's count of new contacts with walls and props
   (the log's ``collisions``, since the episode began) went up; each is told by what the robot
-  was commanded then: turning in place (a search), driving, backing off or standing (and, in
-  logs written before that addition was removed, retracing: the way just come backwards before
-  a turn in place);
+  was commanded then: turning in place (a search), driving, backing off, retracing (driving the
+  way just come backwards before a turn in place) or standing;
 * **driving on by odometry** (``supervisor.odometry_max_m``): the steps at which the views
   matched nothing and the supervisor drove on by the map's arc lengths, and the nodes it took
   as reached so (the log's ``odometry``; logs written before that field count none);

@@ -362,7 +362,7 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
                                  f"{c['belief_wrong_localisations']} |")
         lines += odometry_lines(counted)
         if any(c["collisions"] for c in counted.values()):
-            doings = ("turning in place", "driving", "backing off", "standing")
+            doings = ("turning in place", "driving", "retracing", "backing off", "standing")
             doings += tuple(sorted({d for c in counted.values() for d in c["collisions"]} - set(doings)))
             lines += ["", "Collisions (new contacts with walls and props, from the simulator) by what the robot was "
                       "commanded at the step each began (`robot/bench/diagnosis.py`).", "",
