@@ -5,7 +5,6 @@ tests/test_bench_paper.py (slow lane)."""
 import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -101,10 +100,8 @@ def _bench(*argv: str, block_ray: bool = False, timeout: float = 120) -> subproc
 ])
 def test_ray_arguments_and_an_unreachable_cluster_exit_2_before_any_work(argv, block_ray, message, tmp_path):
     out = tmp_path / "run"
-    started = time.perf_counter()
     done = _bench("--routes", f"{TINY}:short", "--methods", "ours", "--trials", "1", "--sparsity", "none",
                   "--quiet", "--out", str(out), *argv, block_ray=block_ray)
     assert done.returncode == 2, done.stderr
     assert message in done.stderr and "Traceback" not in done.stderr
-    assert not out.exists()                 # nothing mapped, nothing written
-    assert time.perf_counter() - started < 60
+    assert not out.exists()                 # nothing mapped, nothing written (a hang hits _bench's timeout)
