@@ -4,6 +4,7 @@ import os
 import signal
 import threading
 import time
+from concurrent.futures.process import _ExecutorManagerThread
 from pathlib import Path
 
 import pytest
@@ -62,3 +63,5 @@ def test_an_interrupt_ends_the_workers_instead_of_running_the_queue(tmp_path, ho
     for pid in {int(Path(tmp_path, f"{i}.started").read_text()) for i in started}:
         with pytest.raises(ProcessLookupError):      # no worker left behind
             os.kill(pid, 0)
+    # nor the pool's manager thread, which would race the interpreter's exit for its wake-up pipe
+    assert not [t for t in threading.enumerate() if isinstance(t, _ExecutorManagerThread)]
