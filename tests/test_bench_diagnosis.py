@@ -55,10 +55,12 @@ def test_confirmations_wrong_places_and_lost_events():
     assert summary.endswith("first lost: step 5 at (1.5, 0.0), 1 -> 2")
     counts = confirmation_counts([d, diagnose(STEPS[:5], POSES)])
     assert counts == {"episodes": 2, "confirmations": 7, "wrong": 2, "localisations": 3, "wrong_localisations": 1,
-                      "belief_localisations": 0, "belief_wrong_localisations": 0, "belief_steps": 0,
-                      "belief_right": 0, "belief_confident": 0, "belief_confident_right": 0,
+                      "belief_localisations": 0, "belief_wrong_localisations": 0, "both_wrong_localisations": 0,
+                      "belief_steps": 0, "belief_right": 0, "belief_confident": 0, "belief_confident_right": 0,
                       "pinned_episodes": 0, "pinned_steps": 0, "odometry_episodes": 0, "odometry_steps": 0,
-                      "odometry_nodes": 0, "collisions": {}, "median_distance_m": 0.2}
+                      "odometry_nodes": 0, "odometry_nodes_wrong": 0, "belief_odometry_nodes": 0,
+                      "belief_wrong_odometry_nodes": 0, "both_wrong_odometry_nodes": 0, "collisions": {},
+                      "median_distance_m": 0.2}
     assert d.belief_summary() is None                       # a log without the belief
 
 
@@ -77,6 +79,7 @@ def test_the_belief_in_the_log_is_judged_by_the_same_rule():
                                   "them; at the 2 (re-)localisations the navigator was wrong at 1, the belief at 0")
     counts = confirmation_counts([d])
     assert counts["belief_localisations"] == 2 and counts["belief_wrong_localisations"] == 0
+    assert counts["both_wrong_localisations"] == 0          # step 7: the navigator wrong, the mode right
 
 
 def _moving(i, action, x=0.0, yaw=0.0):
@@ -168,15 +171,23 @@ def test_collisions_are_told_by_what_the_robot_was_commanded_then():
 
 
 def test_driving_on_by_odometry_is_counted_from_the_log():
-    """The steps the supervisor drove on by odometry and the nodes it took as reached so; a log
-    written before the field counts none."""
-    marks = {3: "driving on", 4: "reached", 5: None, 8: "driving on"}
+    """The steps the supervisor drove on by odometry and the nodes it took as reached so, judged
+    like every confirmation and beside the belief's mode; a log written before the field counts none."""
+    marks = {3: "driving on", 4: "reached", 5: None, 8: "driving on", 9: "reached"}
     steps = [{**s, "odometry": marks.get(s["step"])} for s in STEPS]
     d = diagnose(steps, POSES)
-    assert (d.odometry_steps, d.odometry_nodes) == (3, 1)
-    assert "drove on by odometry for 3 steps, 1 node(s) reached so" in d.summary()
+    assert (d.odometry_steps, d.odometry_nodes) == (4, 2)
+    assert [c.step for c in d.confirmations if c.by_odometry] == [4, 9]
+    assert "drove on by odometry for 4 steps, 2 node(s) reached so" in d.summary()
     counts = confirmation_counts([d, d, diagnose(STEPS, POSES)])
-    assert (counts["odometry_episodes"], counts["odometry_steps"], counts["odometry_nodes"]) == (2, 6, 2)
+    assert (counts["odometry_episodes"], counts["odometry_steps"], counts["odometry_nodes"]) == (2, 8, 4)
+    assert counts["odometry_nodes_wrong"] == 2 and counts["belief_odometry_nodes"] == 0   # step 9, no belief
+    # the belief's mode at those nodes: right at step 4, at node 3 (7.5 m away) at step 9 where the arc length erred too
+    tops = {4: [[1, 0.8]], 9: [[3, 0.7]]}
+    believed = diagnose([{**s, "belief_top": tops.get(s["step"])} for s in steps], POSES)
+    counts = confirmation_counts([believed])
+    assert (counts["belief_odometry_nodes"], counts["belief_wrong_odometry_nodes"],
+            counts["both_wrong_odometry_nodes"], counts["odometry_nodes_wrong"]) == (2, 1, 1, 1)
     assert diagnose(STEPS, POSES).odometry_steps == 0 and "odometry" not in diagnose(STEPS, POSES).summary()
     assert Diagnosis.from_dict(json.loads(json.dumps(d.to_dict()))) == d
 

@@ -68,5 +68,9 @@ def test_the_odometry_table_names_only_where_driving_on_acted():
     counted = {("hospital easy", "ours"): confirmation_counts([blind, seen]),
                ("office", "ours"): confirmation_counts([seen])}
     lines = odometry_lines(counted)
-    assert lines[-1] == "| hospital easy | ours | 2 | 1 | 2 | 1 |" and not any("office" in line for line in lines)
+    assert lines[-1] == "| hospital easy | ours | 2 | 1 | 2 | 1 | 0 |" and not any("office" in line for line in lines)
     assert odometry_lines({("office", "ours"): confirmation_counts([seen])}) == []
+    # with the belief in the log, its mode at the node reached by odometry stands beside it (node 0, 1 m back: right)
+    believed = diagnose([{**s, "belief_top": [[0, 0.9]]} for s in steps], poses)
+    lines = odometry_lines({("hospital easy", "ours"): confirmation_counts([believed])})
+    assert lines[-1] == "| hospital easy | ours | 1 | 1 | 2 | 1 | 0 | 0 | 0 |" and "belief wrong" in lines[-3]

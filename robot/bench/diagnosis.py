@@ -28,7 +28,8 @@ pose. Together they tell, without looking at pictures, whether each node the nav
   as reached so (the log's ``odometry``; logs written before that field count none);
 * where the log has the belief over the map (``belief_top``), the belief's mode is judged by the
   same rule at every step and at every confirmation: how often the belief would have placed the
-  robot right where the navigator's single look did or did not.
+  robot right where the navigator's single look did or did not; the same for the nodes reached
+  by odometry, where the belief's mode is the alternative to the map's arc lengths.
 
 :func:`diagnose` gives all of them and a one-line :meth:`Diagnosis.summary` (the first wrong
 confirmation and the first lost event) for the paper report's failed episodes; the report also
@@ -82,6 +83,7 @@ class Confirmation:
     heading_error_deg: float   # the robot's true yaw minus the node's (wrapped to [-180, 180))
     belief_node: object = None           # the belief's mode at that step (None: no belief in the log)
     belief_wrong: Optional[bool] = None  # the mode judged by the same rule
+    by_odometry: bool = False            # reached by driving on by odometry (the log's ``odometry``)
 
     def is_wrong(self, far_m: float = FAR_M, near_m: float = NEAR_M, turned_deg: float = TURNED_DEG) -> bool:
         return wrong_place(self.distance_m, self.heading_error_deg, far_m, near_m, turned_deg)
@@ -358,7 +360,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
             confirmations.append(Confirmation(
                 step=int(s["step"]), node=node, kind=kind, x_m=float(s["x_m"]), y_m=float(s["y_m"]),
                 distance_m=distance, node_x_m=x, node_y_m=y, heading_error_deg=error,
-                belief_node=mode, belief_wrong=mode_wrong))
+                belief_node=mode, belief_wrong=mode_wrong,
+                by_odometry=kind == "reached" and s.get("odometry") == "reached"))
         if state == "relocalising" and previous is not None and previous["state"] in _ON_THE_WAY:
             lost.append(LostEvent(step=int(s["step"]), x_m=float(s["x_m"]), y_m=float(s["y_m"]),
                                   current_node=previous["current_node"], target_node=previous["target_node"]))
@@ -379,13 +382,18 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
 def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
     """Totals over episodes: confirmations and wrong ones, the same for (re-)localisations, the
     episodes and steps pinned, the episodes, steps and nodes driven on by odometry, and the
-    collisions by what the robot was doing."""
+    collisions by what the robot was doing. Where the belief is in the logs: its mode's wrong
+    places at the (re-)localisations and at the nodes reached by odometry, and how many of them
+    the navigator got wrong too."""
     every = [c for d in diagnoses for c in d.confirmations]
     localised = [c for c in every if c.kind == "localised"]
     judged = [c for c in localised if c.belief_wrong is not None]
+    odometry = [c for c in every if c.by_odometry]
+    odometry_judged = [c for c in odometry if c.belief_wrong is not None]
     return {"episodes": len(diagnoses), "confirmations": len(every), "wrong": sum(c.is_wrong() for c in every),
             "localisations": len(localised), "wrong_localisations": sum(c.is_wrong() for c in localised),
             "belief_localisations": len(judged), "belief_wrong_localisations": sum(c.belief_wrong for c in judged),
+            "both_wrong_localisations": sum(c.belief_wrong and c.is_wrong() for c in judged),
             "belief_steps": sum(d.belief_steps for d in diagnoses), "belief_right": sum(d.belief_right for d in diagnoses),
             "belief_confident": sum(d.belief_confident for d in diagnoses),
             "belief_confident_right": sum(d.belief_confident_right for d in diagnoses),
@@ -394,6 +402,10 @@ def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
             "odometry_episodes": sum(bool(d.odometry_steps) for d in diagnoses),
             "odometry_steps": sum(d.odometry_steps for d in diagnoses),
             "odometry_nodes": sum(d.odometry_nodes for d in diagnoses),
+            "odometry_nodes_wrong": sum(c.is_wrong() for c in odometry),
+            "belief_odometry_nodes": len(odometry_judged),
+            "belief_wrong_odometry_nodes": sum(c.belief_wrong for c in odometry_judged),
+            "both_wrong_odometry_nodes": sum(c.belief_wrong and c.is_wrong() for c in odometry_judged),
             "collisions": _sum_counts(d.collisions_by_doing() for d in diagnoses),
             "median_distance_m": None if not every else round(statistics.median(c.distance_m for c in every), 3)}
 

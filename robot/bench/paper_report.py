@@ -353,13 +353,14 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
                       "every step, at the steps where its confidence reached "
                       f"{CONFIDENT:g}, and at the navigator's (re-)localisations.", "",
                       "| route | method | steps | mode right | confident | confident and right | "
-                      "(re-)localisations | navigator wrong | belief wrong |", "|---|---|---|---|---|---|---|---|---|"]
+                      "(re-)localisations | navigator wrong | belief wrong | both wrong |",
+                      "|---|---|---|---|---|---|---|---|---|---|"]
             for (label, method), c in counted.items():
                 if c["belief_steps"]:
                     lines.append(f"| {label} | {method} | {c['belief_steps']} | {c['belief_right']} | "
                                  f"{c['belief_confident']} | {c['belief_confident_right']} | "
                                  f"{c['belief_localisations']} | {c['wrong_localisations']} | "
-                                 f"{c['belief_wrong_localisations']} |")
+                                 f"{c['belief_wrong_localisations']} | {c['both_wrong_localisations']} |")
         lines += odometry_lines(counted)
         if any(c["collisions"] for c in counted.values()):
             doings = ("turning in place", "driving", "retracing", "backing off", "standing")
@@ -387,18 +388,24 @@ def _markdown(command, table, routes, methods, summary, main, study, sparsity, s
 
 def odometry_lines(counted: dict) -> list[str]:
     """The report's table of driving on by odometry (``supervisor.odometry_max_m``) from
-    ``{(route, method): confirmation_counts(...)}``; no lines where it never acted."""
+    ``{(route, method): confirmation_counts(...)}``; no lines where it never acted. Where the logs
+    hold the belief, its mode at those nodes is judged beside the arc length's node."""
     if not any(c["odometry_steps"] for c in counted.values()):
         return []
+    belief = any(c["belief_odometry_nodes"] for c in counted.values())
     lines = ["", "Driving on by odometry (`supervisor.odometry_max_m`): the episodes and steps where the views "
-             "matched nothing and the supervisor drove on by the map's arc lengths, and the nodes it took as "
-             "reached so (routes and methods where it never acted are left out).", "",
-             "| route | method | episodes | driving on: episodes | steps | nodes reached by odometry |",
-             "|---|---|---|---|---|---|"]
+             "matched nothing and the supervisor drove on by the map's arc lengths, the nodes it took as "
+             "reached so, and how many of them were at a wrong place (routes and methods where it never acted "
+             "are left out)" + ("; beside them, the belief's mode at the same steps." if belief else "."), "",
+             "| route | method | episodes | driving on: episodes | steps | nodes reached by odometry | wrong |"
+             + (" belief wrong | both wrong |" if belief else ""),
+             "|---|---|---|---|---|---|---|" + ("---|---|" if belief else "")]
     for (label, method), c in counted.items():
         if c["odometry_steps"]:
             lines.append(f"| {label} | {method} | {c['episodes']} | {c['odometry_episodes']} | "
-                         f"{c['odometry_steps']} | {c['odometry_nodes']} |")
+                         f"{c['odometry_steps']} | {c['odometry_nodes']} | {c['odometry_nodes_wrong']} |"
+                         + (f" {c['belief_wrong_odometry_nodes']} | {c['both_wrong_odometry_nodes']} |"
+                            if belief else ""))
     return lines
 
 
