@@ -58,7 +58,7 @@ def test_confirmations_wrong_places_and_lost_events():
                       "belief_localisations": 0, "belief_wrong_localisations": 0, "both_wrong_localisations": 0,
                       "belief_steps": 0, "belief_right": 0, "belief_confident": 0, "belief_confident_right": 0,
                       "pinned_episodes": 0, "pinned_steps": 0, "odometry_episodes": 0, "odometry_steps": 0,
-                      "odometry_nodes": 0, "odometry_nodes_wrong": 0, "belief_odometry_nodes": 0,
+                      "odometry_nodes": 0, "odometry_nodes_judged": 0, "odometry_nodes_wrong": 0, "belief_odometry_nodes": 0,
                       "belief_wrong_odometry_nodes": 0, "both_wrong_odometry_nodes": 0, "collisions": {},
                       "median_distance_m": 0.2}
     assert d.belief_summary() is None                       # a log without the belief

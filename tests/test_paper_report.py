@@ -68,9 +68,45 @@ def test_the_odometry_table_names_only_where_driving_on_acted():
     counted = {("hospital easy", "ours"): confirmation_counts([blind, seen]),
                ("office", "ours"): confirmation_counts([seen])}
     lines = odometry_lines(counted)
-    assert lines[-1] == "| hospital easy | ours | 2 | 1 | 2 | 1 | 0 |" and not any("office" in line for line in lines)
+    assert lines[-1] == "| hospital easy | ours | 2 | 1 | 2 | 1 | 0 of 1 |" and not any("office" in line for line in lines)
     assert odometry_lines({("office", "ours"): confirmation_counts([seen])}) == []
     # with the belief in the log, its mode at the node reached by odometry stands beside it (node 0, 1 m back: right)
     believed = diagnose([{**s, "belief_top": [[0, 0.9]]} for s in steps], poses)
     lines = odometry_lines({("hospital easy", "ours"): confirmation_counts([believed])})
-    assert lines[-1] == "| hospital easy | ours | 1 | 1 | 2 | 1 | 0 | 0 | 0 |" and "belief wrong" in lines[-3]
+    assert lines[-1] == "| hospital easy | ours | 1 | 1 | 2 | 1 | 0 of 1 | 0 | 0 |" and "belief wrong" in lines[-3]
+
+
+def test_a_record_from_before_the_odometry_judgement_gives_way_to_its_step_log(tmp_path):
+    """A record whose diagnosis predates the marks of nodes reached by odometry cannot say whether
+    they were right: the report reads the episode's step log instead, and without one keeps the
+    record and counts none of its odometry nodes as judged (unknown, not right)."""
+    import dataclasses
+    import json
+
+    from robot.bench.diagnosis import confirmation_counts, diagnose
+    from robot.bench.paper_report import diagnose_episodes
+    from robot.bench.trials import Trial, step_log_path
+
+    maps = tmp_path / "map"
+    maps.mkdir()
+    poses = {0: (0.0, 0.0, 0.0), 1: (1.0, 0.0, 0.0)}
+    (maps / "manifest.json").write_text(json.dumps({"nodes": [
+        {"id": n, "true_pose": {"x_m": x, "y_m": y, "yaw_rad": yaw}} for n, (x, y, yaw) in poses.items()]}))
+    steps = [{"step": i, "x_m": 2.0 * i, "y_m": 0.0, "yaw_deg": 0.0, "state": "navigating", "current_node": min(i, 1),
+              "target_node": 1, "odometry": ["driving on", "reached"][i]} for i in range(2)]   # node 1 reached 1 m off
+    trial = Trial(world="hospital", route="easy", method="ours", trial=0, map_dir=str(maps), appearance_seed=1,
+                  start_x_m=0.0, start_y_m=0.0, start_yaw_deg=0.0, offset_m=0.0, offset_yaw_deg=0.0,
+                  shortest_length_m=1.0)
+    old = diagnose(steps, poses).to_dict()
+    old.pop("odometry_judged")
+    for c in old["confirmations"]:
+        c.pop("by_odometry")
+    episode = {"trial": dataclasses.asdict(trial), "metrics": {"steps": 2}, "diagnosis": old}
+
+    kept = confirmation_counts(list(diagnose_episodes([episode], tmp_path, {}).values()))
+    assert (kept["odometry_nodes"], kept["odometry_nodes_judged"], kept["confirmations"]) == (1, 0, 2)
+    log = step_log_path(tmp_path, trial)
+    log.parent.mkdir()
+    log.write_text("".join(json.dumps(s) + "\n" for s in steps))
+    read = confirmation_counts(list(diagnose_episodes([episode], tmp_path, {}).values()))
+    assert (read["odometry_nodes"], read["odometry_nodes_judged"], read["odometry_nodes_wrong"]) == (1, 1, 0)

@@ -156,6 +156,8 @@ class Diagnosis:
     collisions: tuple[CollisionOnset, ...] = ()
     odometry_steps: int = 0                     # steps driven on by odometry (views matching nothing)
     odometry_nodes: int = 0                     # ... of them, nodes taken as reached by odometry
+    odometry_judged: bool = False               # its confirmations mark the nodes reached by odometry
+                                                # (records written before they did: unknown, not right)
 
     def to_dict(self) -> dict:
         """Plain lists and scalars for an episode's JSON record (:meth:`from_dict` reads it back)."""
@@ -369,7 +371,8 @@ def diagnose(steps: Iterable[Mapping], poses: Mapping, goal: Optional[tuple] = N
     beliefs = {"belief_steps": counts["steps"], "belief_right": counts["right"],
                "belief_confident": counts["confident"], "belief_confident_right": counts["confident_right"],
                "pinned": pinned_stretches(steps), "collisions": collision_onsets(steps),
-               "odometry_steps": counts["odometry"], "odometry_nodes": counts["odometry_nodes"]}
+               "odometry_steps": counts["odometry"], "odometry_nodes": counts["odometry_nodes"],
+               "odometry_judged": True}
     if goal is None:
         return Diagnosis(tuple(confirmations), tuple(lost), **beliefs)
     node, (gx, gy) = goal
@@ -388,7 +391,7 @@ def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
     every = [c for d in diagnoses for c in d.confirmations]
     localised = [c for c in every if c.kind == "localised"]
     judged = [c for c in localised if c.belief_wrong is not None]
-    odometry = [c for c in every if c.by_odometry]
+    odometry = [c for d in diagnoses if d.odometry_judged for c in d.confirmations if c.by_odometry]
     odometry_judged = [c for c in odometry if c.belief_wrong is not None]
     return {"episodes": len(diagnoses), "confirmations": len(every), "wrong": sum(c.is_wrong() for c in every),
             "localisations": len(localised), "wrong_localisations": sum(c.is_wrong() for c in localised),
@@ -402,7 +405,7 @@ def confirmation_counts(diagnoses: Sequence[Diagnosis]) -> dict:
             "odometry_episodes": sum(bool(d.odometry_steps) for d in diagnoses),
             "odometry_steps": sum(d.odometry_steps for d in diagnoses),
             "odometry_nodes": sum(d.odometry_nodes for d in diagnoses),
-            "odometry_nodes_wrong": sum(c.is_wrong() for c in odometry),
+            "odometry_nodes_judged": len(odometry), "odometry_nodes_wrong": sum(c.is_wrong() for c in odometry),
             "belief_odometry_nodes": len(odometry_judged),
             "belief_wrong_odometry_nodes": sum(c.belief_wrong for c in odometry_judged),
             "both_wrong_odometry_nodes": sum(c.belief_wrong and c.is_wrong() for c in odometry_judged),

@@ -225,7 +225,8 @@ def diagnose_episodes(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
     """``{id(episode): Diagnosis}`` for the episodes whose record holds the diagnosis made when
     they ran, or with a step log of all their steps in ``out`` and a map with true node poses
     (:mod:`robot.bench.diagnosis`); ``specs``: the world specs by name (the true goal of each
-    route). The record comes first: a replay may have written the log since."""
+    route). The record comes first: a replay may have written the log since; but a record written
+    before the diagnosis judged the nodes reached by odometry gives way to a log of the episode."""
     import sys
 
     from robot.bench.diagnosis import Diagnosis, StepLogError, diagnose, map_node_poses, read_step_log, route_goal
@@ -237,7 +238,8 @@ def diagnose_episodes(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
         if e.get("diagnosis") is not None:
             try:
                 found[id(e)] = Diagnosis.from_dict(e["diagnosis"])
-                continue
+                if found[id(e)].odometry_judged or not found[id(e)].odometry_nodes:
+                    continue
             except (KeyError, TypeError) as exc:
                 print(f"note: {_episode_label(e)}: the diagnosis in its record is unreadable ({exc}); "
                       "reading its step log", file=sys.stderr)
@@ -252,13 +254,16 @@ def diagnose_episodes(episodes: Sequence[dict], out: Path, specs: dict) -> dict:
         try:
             steps = read_step_log(log)
             if len(steps) != e["metrics"]["steps"]:
+                if id(e) in found:        # the record stands
+                    continue
                 print(f"note: {log} has {len(steps)} steps, the episode {e['metrics']['steps']}: a log of an earlier "
                       "run, left out of the report", file=sys.stderr)
                 continue
             goal = route_goal(_spec_of(specs, Path(trial.world).stem), trial.route, e.get("goal_node"))
             found[id(e)] = diagnose(steps, poses_of[trial.map_dir], goal)
         except (StepLogError, KeyError) as exc:
-            print(f"note: {log}: left out of the report ({exc})", file=sys.stderr)
+            if id(e) not in found:
+                print(f"note: {log}: left out of the report ({exc})", file=sys.stderr)
     return found
 
 
@@ -395,15 +400,17 @@ def odometry_lines(counted: dict) -> list[str]:
     belief = any(c["belief_odometry_nodes"] for c in counted.values())
     lines = ["", "Driving on by odometry (`supervisor.odometry_max_m`): the episodes and steps where the views "
              "matched nothing and the supervisor drove on by the map's arc lengths, the nodes it took as "
-             "reached so, and how many of them were at a wrong place (routes and methods where it never acted "
-             "are left out)" + ("; beside them, the belief's mode at the same steps." if belief else "."), "",
+             "reached so, and how many of them were at a wrong place, of those judged (an episode's record "
+             "written before the diagnosis judged them counts only with its step log; routes and methods where "
+             "it never acted are left out)" + ("; beside them, the belief's mode at the same steps." if belief else "."), "",
              "| route | method | episodes | driving on: episodes | steps | nodes reached by odometry | wrong |"
              + (" belief wrong | both wrong |" if belief else ""),
              "|---|---|---|---|---|---|---|" + ("---|---|" if belief else "")]
     for (label, method), c in counted.items():
         if c["odometry_steps"]:
             lines.append(f"| {label} | {method} | {c['episodes']} | {c['odometry_episodes']} | "
-                         f"{c['odometry_steps']} | {c['odometry_nodes']} | {c['odometry_nodes_wrong']} |"
+                         f"{c['odometry_steps']} | {c['odometry_nodes']} | "
+                         f"{c['odometry_nodes_wrong']} of {c['odometry_nodes_judged']} |"
                          + (f" {c['belief_wrong_odometry_nodes']} | {c['both_wrong_odometry_nodes']} |"
                             if belief else ""))
     return lines
