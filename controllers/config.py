@@ -447,18 +447,20 @@ class HeadingGuardConfig:
     off a corridor's axis drifts into the wall it faces. Acts once ``min_confirmations`` offsets
     are known; the voter only, and only on maps with node headings.
 
-    ``final_approach``: once the goal node is confirmed and the robot drives on until the goal
-    is seen best, it holds the goal node's mapped heading (FORWARD within
-    ``final_tolerance_deg``, else FORWARD_LEFT / FORWARD_RIGHT) instead of following the votes:
-    where the goal matches weakly the voter weaves left and right in place, and arrival, which
-    waits for the scores to stop improving, then comes without the robot having moved."""
+    ``final_approach`` (off by default): once the goal node is confirmed and the robot drives on
+    until the goal is seen best, it holds the goal node's mapped heading (FORWARD within
+    ``final_tolerance_deg``, else FORWARD_LEFT / FORWARD_RIGHT) instead of following the votes,
+    where a weakly matching goal once made the voter weave in place. Off: since the voter steers
+    by the target's bearing it changes nothing the ablation could see (docs/results.md); kept as
+    an option so that runs made with it replay. ``final_tolerance_deg`` also bounds driving on
+    by odometry along the mapped heading."""
 
     enabled: bool = True
     max_error_deg: float = 15.0
     release_deg: float = 5.0
     confirmations: int = 5
     min_confirmations: int = 2
-    final_approach: bool = True
+    final_approach: bool = False
     final_tolerance_deg: float = 5.0
 
     def __post_init__(self) -> None:

@@ -37,9 +37,9 @@ States (:class:`NavState`):
   map-to-odometry offset measured at the nodes confirmed; with
   ``localiser.compass_bandwidth_deg`` the first look round's offset stands for the placement's
   and stays one vote of the median), the robot turns back to within ``release_deg`` before
-  the voter steers again. In the final approach (the goal node
-  confirmed, driving on until the goal is seen best) the guard holds the goal node's mapped
-  heading instead of the votes (``heading_guard.final_approach``): the state stays NAVIGATING.
+  the voter steers again. With ``heading_guard.final_approach`` (off by default), in the final
+  approach (the goal node confirmed, driving on until the goal is seen best) the guard holds the
+  goal node's mapped heading instead of the votes: the state stays NAVIGATING.
 * (driving on) while the supervisor drives on by odometry (``supervisor.odometry_max_m``: the
   views match no node near the plan), the voter's navigator drives forward along the target
   node's mapped heading (the heading guard's offsets), or straight on without them; the state

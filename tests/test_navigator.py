@@ -923,18 +923,19 @@ def test_heading_guard_settings_are_checked():
 
 
 def test_the_final_approach_holds_the_goal_nodes_mapped_heading(loop):
+    """``heading_guard.final_approach`` (an option, off by default)."""
     graph, poses = loop
     places = SyntheticPlaces(poses, seed=1)
     start = offset(poses[0], forward_m=-0.2, left_m=0.1, yaw_rad=0.1)
-    ep = run(Navigator(graph, places.node_ids, 9, CONFIG, node_headings=_headings(poses, 1.0)), places, start)
+    on = replace(CONFIG, heading_guard=replace(CONFIG.heading_guard, final_approach=True))
+    ep = run(Navigator(graph, places.node_ids, 9, on, node_headings=_headings(poses, 1.0)), places, start)
     assert ep.last.state is NavState.ARRIVED and ep.poses[-1].distance_to(poses[9]) < 0.5
     final = [(s, p) for s, p in zip(ep.steps, ep.poses) if "final approach" in s.reason]
     # from the goal node's confirmation to the arrival: forward along the node's heading, no votes
     assert final and ep.steps.index(final[-1][0]) == len(ep.steps) - 2
     assert {s.action for s, _ in final} <= {Action.FORWARD, Action.FORWARD_LEFT, Action.FORWARD_RIGHT}
     assert all(abs(wrap_angle(p.yaw_rad - poses[9].yaw_rad)) < math.radians(20) for _, p in final)
-    off = replace(CONFIG, heading_guard=replace(CONFIG.heading_guard, final_approach=False))
-    plain = run(Navigator(graph, places.node_ids, 9, off, node_headings=_headings(poses, 1.0)), places, start)
+    plain = run(Navigator(graph, places.node_ids, 9, CONFIG, node_headings=_headings(poses, 1.0)), places, start)
     assert not any("final approach" in s.reason for s in plain.steps)
     with pytest.raises(ValueError, match="final_tolerance_deg"):
         HeadingGuardConfig(final_tolerance_deg=-1.0)
