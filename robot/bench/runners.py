@@ -151,7 +151,7 @@ def _stop(pool: ProcessPoolExecutor, workers) -> None:
 
 def _end_workers(pool: ProcessPoolExecutor, workers) -> None:
     # shutdown(wait=False) forgets the pool's manager thread; left running, it races the interpreter's
-    # exit hook for its wake-up pipe ("Bad file descriptor" and leaked semaphores on every stop)
+    # exit hook for its wake-up pipe ("Bad file descriptor", leaked semaphores) after a stop
     manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)   # the queued episodes: cancelled by the pool's own thread
     for p in workers:
