@@ -2,6 +2,9 @@
 
 import os
 import signal
+import subprocess
+import sys
+import textwrap
 import threading
 import time
 from concurrent.futures.process import _ExecutorManagerThread
@@ -65,3 +68,37 @@ def test_an_interrupt_ends_the_workers_instead_of_running_the_queue(tmp_path, ho
             os.kill(pid, 0)
     # nor the pool's manager thread, which would race the interpreter's exit for its wake-up pipe
     assert not [t for t in threading.enumerate() if isinstance(t, _ExecutorManagerThread)]
+
+
+def test_a_stopped_run_prints_nothing_of_the_pools_insides(tmp_path):
+    """Stopped while its workers run episodes with a progress bar, the harness's process ends
+    without the interpreter's or the resource tracker's complaints: no "Exception ignored" from
+    the pool's wake-up pipe, no "leaked semaphore objects" from the workers' progress bars."""
+    (tmp_path / "stand_in.py").write_text(textwrap.dedent("""
+        import time
+        from tqdm import tqdm
+
+        def episode(seconds, config_path, step_log=None):
+            for _ in tqdm(range(1), disable=True):
+                time.sleep(seconds)
+            return {}
+    """))
+    (tmp_path / "stop.py").write_text(textwrap.dedent("""
+        import os, signal, threading
+        from stand_in import episode
+        from robot.bench.runners import Job, LocalRunner
+
+        if __name__ == "__main__":
+            jobs = [Job(i, 0.2 if i == 0 else 5.0) for i in range(6)]
+            try:
+                for index, _ in LocalRunner(2, None, run=episode).results(jobs):
+                    threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT)).start()
+            except KeyboardInterrupt:
+                print("stopped")
+    """))
+    root = Path(__file__).resolve().parents[1]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(root)])}
+    done = subprocess.run([sys.executable, str(tmp_path / "stop.py")], cwd=root, env=env, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0 and done.stdout.strip() == "stopped", done.stderr
+    assert "leaked" not in done.stderr and "Exception ignored" not in done.stderr, done.stderr

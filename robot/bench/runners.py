@@ -10,12 +10,15 @@ from __future__ import annotations
 
 import os
 import signal
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from multiprocessing import get_context
 from typing import Callable, Iterator, Optional, Protocol, Sequence
+
+from tqdm import tqdm
 
 from robot.bench.trials import Trial, run_trial, worker_init
 
@@ -105,9 +108,12 @@ class LocalRunner:
 
 
 def _worker_start() -> None:
-    """A worker process's initializer: one thread (:func:`worker_init`), and the stop signals
-    handled by :func:`_worker_stop`."""
+    """A worker process's initializer: one thread (:func:`worker_init`), the stop signals
+    handled by :func:`_worker_stop`, and a thread lock for progress bars."""
     worker_init()
+    # tqdm's default lock is a multiprocessing semaphore, which a worker ended by os._exit (a stop)
+    # leaves to the resource tracker ("leaked semaphore objects"); no other process shares it here
+    tqdm.set_lock(threading.RLock())
     for s in _STOP_SIGNALS:
         signal.signal(s, _worker_stop)
 
