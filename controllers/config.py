@@ -450,9 +450,8 @@ class HeadingGuardConfig:
     ``final_approach`` (off by default): once the goal node is confirmed and the robot drives on
     until the goal is seen best, it holds the goal node's mapped heading (FORWARD within
     ``final_tolerance_deg``, else FORWARD_LEFT / FORWARD_RIGHT) instead of following the votes,
-    where a weakly matching goal once made the voter weave in place. Off: since the voter steers
-    by the target's bearing it changes nothing the ablation could see (docs/results.md); kept as
-    an option so that runs made with it replay. ``final_tolerance_deg`` also bounds driving on
+    where a weakly matching goal once made the voter weave in place. Off: no measurable effect in
+    its ablation (docs/results.md); kept as an option so that runs made with it replay. ``final_tolerance_deg`` also bounds driving on
     by odometry along the mapped heading."""
 
     enabled: bool = True

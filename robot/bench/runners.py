@@ -156,8 +156,8 @@ def _stop(pool: ProcessPoolExecutor, workers) -> None:
 
 
 def _end_workers(pool: ProcessPoolExecutor, workers) -> None:
-    # shutdown(wait=False) forgets the pool's manager thread; left running, it races the interpreter's
-    # exit hook for its wake-up pipe ("Bad file descriptor", leaked semaphores) after a stop
+    # shutdown(wait=False) forgets the pool's manager thread (a second shutdown then joins nothing);
+    # left running, it races the interpreter's exit hook for its wake-up pipe ("Bad file descriptor")
     manager = getattr(pool, "_executor_manager_thread", None)
     pool.shutdown(wait=False, cancel_futures=True)   # the queued episodes: cancelled by the pool's own thread
     for p in workers:
@@ -169,6 +169,5 @@ def _end_workers(pool: ProcessPoolExecutor, workers) -> None:
         if p.is_alive():
             p.kill()
             p.join()
-    pool.shutdown(wait=True)
     if manager is not None:
         manager.join(STOP_GRACE_S)      # it ends once it sees the workers gone
